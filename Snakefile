@@ -1,0 +1,18 @@
+# sonardet: training-free and learned 3D detection of reef structures in multibeam sonar point clouds.
+# Run: snakemake --cores 2 (default config) or --configfile tests/config/smoke.yaml (tiny).
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+include: "rules/common.smk"
+include: "rules/objects.smk"
+
+
+rule all:
+    default_target: True
+    input:
+        final_outputs(),

@@ -1,0 +1,39 @@
+# Helper functions shared by the rules: config validation, class lists, output paths.
+import os
+import sys
+
+from snakemake.exceptions import WorkflowError
+
+# The library lives in src/; importable here even when the package is not installed. Each job's
+# script does the same through workflow_scripts/_bootstrap.py (e.g. in a rule's conda env).
+sys.path.insert(0, os.path.join(workflow.basedir, "src"))
+
+from sonardet.config import ConfigError, validate_config
+
+try:
+    _validated = validate_config(config, source="workflow config")
+except ConfigError as exc:
+    raise WorkflowError(str(exc))
+config.clear()
+config.update(_validated)
+
+CLASSES = config["classes"]
+
+
+wildcard_constraints:
+    cls="|".join(CLASSES),
+
+
+def object_files(ext):
+    """results/objects/{cls}.{ext} for every configured class."""
+    return expand("results/objects/{cls}.{ext}", cls=CLASSES, ext=ext)
+
+
+def template_files():
+    """results/templates/{cls}.npz for every configured class."""
+    return expand("results/templates/{cls}.npz", cls=CLASSES)
+
+
+def final_outputs():
+    """Every final artifact of the workflow on the current config."""
+    return object_files("ply") + object_files("json") + template_files()

@@ -1,0 +1,39 @@
+# Object meshes of each class and their template scans.
+
+
+rule object_mesh:
+    output:
+        ply="results/objects/{cls}.ply",
+        json="results/objects/{cls}.json",
+    log:
+        "results/logs/object_mesh/{cls}.log",
+    benchmark:
+        "results/benchmarks/object_mesh/{cls}.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        objects=config["objects"],
+    script:
+        "../workflow_scripts/object_mesh.py"
+
+
+rule template_scan:
+    input:
+        ply="results/objects/{cls}.ply",
+        json="results/objects/{cls}.json",
+    output:
+        "results/templates/{cls}.npz",
+    log:
+        "results/logs/template_scan/{cls}.log",
+    benchmark:
+        "results/benchmarks/template_scan/{cls}.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        sensor=config["sensor"],
+        templates=config["templates"],
+        seed=config["seed"],
+    script:
+        "../workflow_scripts/template_scan.py"

@@ -1,0 +1,116 @@
+"""Workflow configuration: validation against the JSON schema, defaults, derived seeds and hashes.
+
+The schema (`config/schema.yaml`, shipped in the package as `sonardet/data/schema.yaml`) documents
+every key with units and default. Validation rejects unknown keys and wrong types or ranges with a
+message that names the key path, so a bad config stops the run before any job starts.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+from importlib import resources
+from pathlib import Path
+
+import jsonschema
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, unknown or out of range; the message names the key."""
+
+
+def load_schema() -> dict:
+    """The config JSON schema shipped with the package."""
+    with resources.files("sonardet").joinpath("data/schema.yaml").open("r") as fh:
+        return yaml.safe_load(fh)
+
+
+def _resolve(schema: dict, root: dict) -> dict:
+    while "$ref" in schema:
+        ref = schema["$ref"]
+        node = root
+        for part in ref.lstrip("#/").split("/"):
+            node = node[part]
+        schema = {**node, **{k: v for k, v in schema.items() if k != "$ref"}}
+    return schema
+
+
+def _fill_defaults(instance, schema: dict, root: dict):
+    """Insert schema defaults for missing keys, recursively; a given dict is completed from the
+    property's default dict, so `tetrapod_s: {height_m: 1.5}` keeps the default mass."""
+    schema = _resolve(schema, root)
+    if not isinstance(instance, dict) or schema.get("type") != "object":
+        return instance
+    for key, sub in schema.get("properties", {}).items():
+        sub_r = _resolve(sub, root)
+        if key not in instance:
+            if "default" in sub_r:
+                instance[key] = copy.deepcopy(sub_r["default"])
+            else:
+                continue
+        elif isinstance(instance[key], dict) and isinstance(sub_r.get("default"), dict):
+            for dk, dv in sub_r["default"].items():
+                instance[key].setdefault(dk, copy.deepcopy(dv))
+        _fill_defaults(instance[key], sub_r, root)
+    return instance
+
+
+def _key_path(path) -> str:
+    out = ""
+    for p in path:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out or "<top level>"
+
+
+def _describe(err: jsonschema.ValidationError) -> str:
+    where = _key_path(err.absolute_path)
+    if err.validator == "additionalProperties":
+        allowed = sorted(err.schema.get("properties", {}))
+        extra = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []
+        keys = ", ".join(f"{where}.{k}" if where != "<top level>" else k for k in extra)
+        return f"{keys}: unknown key (allowed here: {', '.join(allowed)})"
+    if err.validator == "enum":
+        return f"{where}: {err.instance!r} is not one of {err.validator_value}"
+    return f"{where}: {err.message}"
+
+
+def validate_config(config: dict, source: str = "config") -> dict:
+    """Validate `config` against the schema and return a copy with every default filled in.
+
+    Raises ConfigError listing every offending key (dotted path) with the reason and the source.
+    """
+    schema = load_schema()
+    cfg = _fill_defaults(copy.deepcopy(dict(config)), schema, schema)
+    validator = jsonschema.Draft202012Validator(schema)
+    errors = sorted(validator.iter_errors(cfg), key=lambda e: list(map(str, e.absolute_path)))
+    if errors:
+        lines = "\n".join(f"  - {_describe(e)}" for e in errors)
+        raise ConfigError(f"invalid configuration ({source}):\n{lines}\nFix these keys; see config/schema.yaml.")
+    return cfg
+
+
+def load_config(path) -> dict:
+    """Read a YAML config file, validate it and fill defaults."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: the top level must be a mapping of keys to values")
+    return validate_config(data, source=str(path))
+
+
+def config_hash(section) -> str:
+    """Short stable hash (hex, 12 chars) of a config section, for provenance in outputs."""
+    blob = json.dumps(section, sort_keys=True, separators=(",", ":")).encode()
+    return hashlib.sha256(blob).hexdigest()[:12]
+
+
+def derive_seed(base_seed: int, *keys) -> int:
+    """Seed for one stochastic step, derived from the config seed and the step's keys (e.g. stage
+    name and scene id). Stable across Python versions and processes (no use of hash())."""
+    blob = json.dumps([int(base_seed), *map(str, keys)]).encode()
+    return int.from_bytes(hashlib.blake2b(blob, digest_size=8).digest(), "little") >> 1

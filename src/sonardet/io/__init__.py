@@ -1,0 +1,1 @@
+"""Readers and writers: point clouds, annotations, detections; atomic writes; local origins."""

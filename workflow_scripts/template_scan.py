@@ -1,0 +1,23 @@
+"""Scan one class's mesh with the MBES sensor model from several views and save the templates."""
+
+import os
+import sys
+
+sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+
+import numpy as np
+
+from sonardet.config import derive_seed
+from sonardet.objects import load_object
+from sonardet.sim.mbes import SensorConfig
+from sonardet.sim.templates import save_templates, scan_templates
+from sonardet.workflow import rule_logging
+
+with rule_logging(snakemake, "template_scan") as log:  # noqa: F821
+    smk = snakemake  # noqa: F821
+    obj = load_object(smk.input.json, smk.input.ply)
+    rng = np.random.default_rng(derive_seed(smk.params.seed, "template", obj.cls))
+    tv = scan_templates(obj.cls, obj.mesh.vertices, obj.mesh.faces, obj.symmetry_order, smk.params.templates,
+                        SensorConfig.from_dict(smk.params.sensor), rng)
+    save_templates(smk.output[0], tv)
+    log.info("%s: %d views, %d points", obj.cls, tv.n_views, len(tv.xyz))
