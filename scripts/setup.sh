@@ -35,9 +35,10 @@ fi
 stamp="$VENV/.sonardet-installed"
 want="$(sha256sum pyproject.toml | cut -c1-16) $TORCH_SPEC"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
-  "$VENV/bin/python" -m pip install -q --upgrade pip 2>&1 | grep -v -i "warning: location" || true
-  "$VENV/bin/python" -m pip install -q "$TORCH_SPEC"
-  "$VENV/bin/python" -m pip install -q -e ".[test]"
+  quiet() { grep -v -E "WARNING: Location .* is ignored" || true; }
+  "$VENV/bin/python" -m pip install -q --upgrade pip 2>&1 | quiet
+  "$VENV/bin/python" -m pip install -q "$TORCH_SPEC" 2>&1 | quiet
+  "$VENV/bin/python" -m pip install -q -e ".[test]" 2>&1 | quiet
   "$VENV/bin/python" -c "import open3d, torch, trimesh, mujoco, embreex, snakemake" \
     || { echo "setup: the environment in $VENV does not import; see the errors above" >&2; exit 1; }
   echo "$want" > "$stamp"

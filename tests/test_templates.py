@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-import trimesh
+import open3d as o3d
 
 from sonardet.sim.mbes import SensorConfig
 from sonardet.sim.templates import load_templates, save_templates, scan_templates
@@ -15,7 +15,10 @@ def test_noiseless_template_points_lie_on_the_mesh(built_objects, cls):
     m = built_objects[cls]
     s = SensorConfig(n_beams=512, range_sigma_m=0.0, dropout_prob=0.0, grazing_dropout_prob=0.0)
     tv = scan_templates(cls, m.mesh.vertices, m.mesh.faces, m.symmetry_order, CFG, s, np.random.default_rng(0))
-    _, dist, _ = trimesh.proximity.closest_point(m.mesh, tv.xyz[::7])
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(m.mesh.vertices, np.float32)),
+                        o3d.core.Tensor(np.asarray(m.mesh.faces, np.uint32)))
+    dist = scene.compute_distance(o3d.core.Tensor(tv.xyz.astype(np.float32))).numpy()
     assert dist.max() < 1e-4
     counts = np.bincount(tv.view, minlength=tv.n_views)
     assert counts.min() > 50  # every view sees the object
