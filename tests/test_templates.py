@@ -19,7 +19,8 @@ def test_noiseless_template_points_lie_on_the_mesh(built_objects, cls):
     scene.add_triangles(o3d.core.Tensor(np.asarray(m.mesh.vertices, np.float32)),
                         o3d.core.Tensor(np.asarray(m.mesh.faces, np.uint32)))
     dist = scene.compute_distance(o3d.core.Tensor(tv.xyz.astype(np.float32))).numpy()
-    assert dist.max() < 1e-4
+    assert dist.max() < 1e-3  # float32 Embree casting; well below the 1 cm range noise
+    assert np.median(dist) < 1e-5
     counts = np.bincount(tv.view, minlength=tv.n_views)
     assert counts.min() > 50  # every view sees the object
     # Nothing below the seabed; occlusion: a view from one side sees that side more.
