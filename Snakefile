@@ -10,6 +10,7 @@ configfile: "config/config.yaml"
 
 include: "rules/common.smk"
 include: "rules/objects.smk"
+include: "rules/scenes.smk"
 
 
 rule all:

@@ -9,6 +9,7 @@ from snakemake.exceptions import WorkflowError
 sys.path.insert(0, os.path.join(workflow.basedir, "src"))
 
 from sonardet.config import ConfigError, validate_config
+from sonardet.sim.dataset import scene_ids, split_names
 
 try:
     _validated = validate_config(config, source="workflow config")
@@ -18,10 +19,13 @@ config.clear()
 config.update(_validated)
 
 CLASSES = config["classes"]
+SCENES = scene_ids(config["scenes"]["n_scenes"])
+SPLITS = split_names(config["split"]["fractions"])
 
 
 wildcard_constraints:
     cls="|".join(CLASSES),
+    scene=r"s\d{4}",
 
 
 def object_files(ext):
@@ -34,6 +38,17 @@ def template_files():
     return expand("results/templates/{cls}.npz", cls=CLASSES)
 
 
+def scene_files(ext):
+    """results/scenes/{scene}.{ext} for every scene of the dataset."""
+    return expand("results/scenes/{scene}.{ext}", scene=SCENES, ext=ext)
+
+
 def final_outputs():
     """Every final artifact of the workflow on the current config."""
-    return object_files("ply") + object_files("json") + template_files()
+    return (
+        object_files("ply")
+        + object_files("json")
+        + template_files()
+        + scene_files("npz")
+        + ["results/tables/dataset_stats.csv"]
+    )

@@ -85,10 +85,50 @@ def validate_config(config: dict, source: str = "config") -> dict:
     cfg = _fill_defaults(copy.deepcopy(dict(config)), schema, schema)
     validator = jsonschema.Draft202012Validator(schema)
     errors = sorted(validator.iter_errors(cfg), key=lambda e: list(map(str, e.absolute_path)))
-    if errors:
-        lines = "\n".join(f"  - {_describe(e)}" for e in errors)
+    problems = [_describe(e) for e in errors] or _cross_checks(cfg)
+    if problems:
+        lines = "\n".join(f"  - {p}" for p in problems)
         raise ConfigError(f"invalid configuration ({source}):\n{lines}\nFix these keys; see config/schema.yaml.")
     return cfg
+
+
+#: Horizontal footprint radius (m) of each class at the default dimensions, for the packing check.
+_FOOTPRINT_R = {"reef_ring": 1.34, "reef_cone": 1.0, "tetrapod_b": 1.3, "tetrapod_s": 0.9}
+
+
+def _cross_checks(cfg: dict) -> list[str]:
+    """Constraints between keys that a JSON schema cannot express."""
+    out = []
+    sc = cfg["scenes"]
+    if sc["seabed"]["mean_depth_m"] >= sc["survey"]["transducer_z_m"]:
+        out.append(f"scenes.seabed.mean_depth_m: {sc['seabed']['mean_depth_m']} m is not below the transducer "
+                   f"(scenes.survey.transducer_z_m = {sc['survey']['transducer_z_m']} m)")
+    for key in ("n_objects", "n_rocks", "scatter_fraction", "cone_gap_m", "big_spacing_m", "rock_size_m"):
+        lo, hi = sc[key]
+        if lo > hi:
+            out.append(f"scenes.{key}: [min, max] with min {lo} > max {hi}")
+    for key in ("slope_deg", "amplitude_m"):
+        lo, hi = sc["seabed"][key]
+        if lo > hi:
+            out.append(f"scenes.seabed.{key}: [min, max] with min {lo} > max {hi}")
+    # More objects than fit: footprints of the largest count may cover at most 60 % of the scene.
+    mix = {c: sc["class_mix"].get(c, 0.0) for c in cfg["classes"]}
+    total = sum(mix.values())
+    if total <= 0:
+        out.append("scenes.class_mix: no weight on any class of `classes`")
+    else:
+        scale = {c: cfg["objects"][c]["height_m"] / d for c, d in
+                 (("reef_ring", 0.75), ("reef_cone", 1.37), ("tetrapod_b", 2.08), ("tetrapod_s", 1.42))}
+        area = sum(w / total * 3.14159 * (_FOOTPRINT_R[c] * scale[c]) ** 2 for c, w in mix.items())
+        ex, ey = sc["extent_m"]
+        if sc["n_objects"][1] * area > 0.6 * ex * ey:
+            out.append(f"scenes.n_objects: up to {sc['n_objects'][1]} objects need about "
+                       f"{sc['n_objects'][1] * area:.0f} m^2 of seabed, more than 60 % of the "
+                       f"{ex} x {ey} m scene (scenes.extent_m); lower n_objects or enlarge the scene")
+    if cfg["split"]["n_test"] >= sc["n_scenes"]:
+        out.append(f"split.n_test: {cfg['split']['n_test']} test scenes leave none of the "
+                   f"{sc['n_scenes']} scenes (scenes.n_scenes) for training")
+    return out
 
 
 def load_config(path) -> dict:

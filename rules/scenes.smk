@@ -1,0 +1,60 @@
+# Synthetic scenes, the train/validation/test split and the dataset table.
+
+
+rule simulate_scene:
+    input:
+        meshes=object_files("ply"),
+        meta=object_files("json"),
+    output:
+        npz="results/scenes/{scene}.npz",
+        json="results/scenes/{scene}.json",
+    log:
+        "results/logs/simulate_scene/{scene}.log",
+    benchmark:
+        "results/benchmarks/simulate_scene/{scene}.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        config={
+            k: config[k] for k in ("seed", "classes", "objects", "sensor", "scenes")
+        },
+    script:
+        "../workflow_scripts/simulate_scene.py"
+
+
+rule split:
+    output:
+        expand("results/splits/{name}.txt", name=SPLITS),
+    log:
+        "results/logs/split.log",
+    benchmark:
+        "results/benchmarks/split.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        split=config["split"],
+        n_scenes=config["scenes"]["n_scenes"],
+        seed=config["seed"],
+    script:
+        "../workflow_scripts/split.py"
+
+
+rule dataset_stats:
+    input:
+        scenes=scene_files("json"),
+        splits=expand("results/splits/{name}.txt", name=SPLITS),
+    output:
+        "results/tables/dataset_stats.csv",
+    log:
+        "results/logs/dataset_stats.log",
+    benchmark:
+        "results/benchmarks/dataset_stats.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        classes=CLASSES,
+    script:
+        "../workflow_scripts/dataset_stats.py"

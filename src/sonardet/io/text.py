@@ -1,0 +1,378 @@
+"""Plain-text point clouds: ``.xyz``, ``.txt``, ``.pts``, ``.csv`` and their ``.gz`` variants.
+
+Reading
+-------
+* Delimiter: comma if the first content line holds a comma, else semicolon if it holds one, else
+  any run of whitespace (spaces, tabs).
+* Blank lines and lines starting with ``#`` are skipped; text after ``#`` on a line is a comment.
+* Header: the first content line is a header when any of its fields is not a number. A leading
+  ``//`` (CloudCompare) is stripped. ``.pts`` files may start with a point-count line (Leica PTS),
+  which is checked against the points read.
+* Column names map to coordinates case-insensitively after removing units in brackets
+  (``"Easting (m)"``), quotes and a trailing ``_m``:
+
+  - x: ``x``, ``easting``, ``east``, ``e``
+  - y: ``y``, ``northing``, ``north``, ``n``
+  - z: ``z``, ``elevation``, ``elev``, ``height``, ``altitude``, ``alt`` (positive up)
+  - ``depth`` (positive down) is *not* taken as z unless ``depth_to_z=True``, which reads
+    ``z = -depth``; a file with depth but no elevation column is refused otherwise.
+  - ``lon``/``lat`` without x/y are refused (project to a metric CRS first).
+
+  Every other column that holds numbers becomes an attribute under its header name (ints stay
+  int64, floats float64, ``True``/``False`` bool); a column whose first value is not a number
+  (e.g. a date string) is dropped with a warning.
+* Without a header the first three columns are x, y, z and extra columns become attributes
+  ``col3``, ``col4``, ... (0-based column index). ``columns=[...]`` names the columns instead.
+* Speed: one pass of ``pandas.read_csv`` (C engine, exact float64 parsing). Only when that pass
+  reports a problem does a slow line-by-line pass run to name the offending line.
+
+Writing
+-------
+Columns x, y, z, then attributes in dict order. ``.csv`` uses commas, the others a single space.
+A header line is written for ``.csv`` and whenever the cloud has attributes (so their names
+survive), never for ``.pts`` (which gets its count line). Floats are written as the shortest
+string that reads back to the identical float64 (or with ``decimals`` fixed decimals); float32
+attributes get float32's shortest string (read back as float64, equal after a cast to float32);
+booleans are written as 0/1 (read back as int64). ``.gz``
+output has a zero time stamp and no file name, so equal clouds give equal bytes. CRS and origin
+are not stored in text files.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import re
+import warnings
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from sonardet.io.pointcloud import PointCloud, PointCloudError, _check_finite, _merge_crs, atomic_path
+
+__all__ = ["read_text", "write_text", "AXIS_ALIASES", "DEPTH_NAMES"]
+
+AXIS_ALIASES: dict[str, tuple[str, ...]] = {
+    "x": ("x", "easting", "east", "e"),
+    "y": ("y", "northing", "north", "n"),
+    "z": ("z", "elevation", "elev", "height", "altitude", "alt"),
+}
+DEPTH_NAMES: tuple[str, ...] = ("depth",)
+GEOGRAPHIC_NAMES: tuple[str, ...] = ("lon", "long", "longitude", "lat", "latitude")
+
+_ENCODING = "utf-8-sig"
+_UNITS = re.compile(r"[\(\[].*?[\)\]]")
+
+
+def _base_suffix(path: Path) -> tuple[str, bool]:
+    """('.xyz'|'.txt'|'.pts'|'.csv', gzipped?) from the file name."""
+    name = path.name.lower()
+    gz = name.endswith(".gz")
+    if gz:
+        name = name[:-3]
+    return Path(name).suffix, gz
+
+
+def _open_text(path: Path, gz: bool) -> io.TextIOBase:
+    """Open a (possibly gzipped) text file for line iteration."""
+    if gz:
+        return io.TextIOWrapper(gzip.open(path, "rb"), encoding=_ENCODING, errors="replace")
+    return open(path, encoding=_ENCODING, errors="replace")
+
+
+def _split(line: str, delim: str | None) -> list[str]:
+    """Fields of one line (comment removed); quotes and surrounding spaces stripped for CSV."""
+    line = line.split("#", 1)[0]
+    if delim is None:
+        return line.split()
+    return [t.strip().strip('"').strip("'").strip() for t in line.rstrip("\r\n").split(delim)]
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _normalize(name: str) -> str:
+    """Column name as matched against the aliases: 'Easting (m)' -> 'easting', 'Z_m' -> 'z'."""
+    n = _UNITS.sub("", name.strip().strip('"').strip("'")).strip().lower()
+    n = re.sub(r"[\s\-]+", "_", n)
+    if n.endswith("_m") and len(n) > 2:
+        n = n[:-2]
+    return n
+
+
+@dataclass
+class _Layout:
+    """What the first lines of a text file say."""
+
+    skip: int  # physical lines before the first data line
+    delim: str | None  # None = whitespace
+    header: list[str] | None
+    count: int | None  # PTS point-count line
+    first_tokens: list[str]
+    first_line: int  # 1-based line number of the first data line
+
+
+def _peek(path: Path, gz: bool, is_pts: bool) -> _Layout:
+    """Find delimiter, header, PTS count line and the first data line."""
+    where = str(path)
+    header: list[str] | None = None
+    count: int | None = None
+    delim: str | None = None
+    decided = False
+    try:
+        with _open_text(path, gz) as fh:
+            for lineno, raw in enumerate(fh, start=1):
+                content = raw.split("#", 1)[0].strip()
+                if not content:
+                    continue
+                if not decided:
+                    probe = content[2:] if content.startswith("//") else content
+                    delim = "," if "," in probe else (";" if ";" in probe else None)
+                    decided = True
+                    tokens = _split(probe, delim)
+                    if is_pts and len(tokens) == 1 and tokens[0].isdigit():
+                        count = int(tokens[0])
+                        decided = False  # the next line decides delimiter and header
+                        continue
+                    if not all(_is_number(t) for t in tokens):
+                        header = tokens
+                        continue
+                    return _Layout(lineno - 1, delim, header, count, tokens, lineno)
+                tokens = _split(content, delim)
+                return _Layout(lineno - 1, delim, header, count, tokens, lineno)
+    except (OSError, EOFError) as exc:
+        raise PointCloudError(f"{where}: cannot read the file ({exc}); is it a complete {'gzip ' if gz else ''}text file?") from exc
+    what = "holds only a header line" if header is not None else "is empty or holds only comments"
+    raise PointCloudError(f"{where}: no points (the file {what})")
+
+
+def _data_lines(path: Path, gz: bool, layout: _Layout) -> Iterator[tuple[int, list[str]]]:
+    """(1-based line number, fields) of every data line, as the fast reader sees them."""
+    with _open_text(path, gz) as fh:
+        for lineno, raw in enumerate(fh, start=1):
+            if lineno <= layout.skip:
+                continue
+            if not raw.split("#", 1)[0].strip():
+                continue
+            yield lineno, _split(raw, layout.delim)
+
+
+def _diagnose(
+    path: Path, gz: bool, layout: _Layout, expected: int, check: dict[int, str], stop_row: int | None = None
+) -> int | None:
+    """Slow pass: raise naming the first line with a wrong column count or an unparsable number.
+
+    ``check`` maps column index -> name for the columns that must be numbers. With ``stop_row``
+    it returns the line number of that 0-based data row instead (None if there are fewer rows).
+    """
+    where = str(path)
+    for row, (lineno, tokens) in enumerate(_data_lines(path, gz, layout)):
+        if len(tokens) != expected:
+            raise PointCloudError(
+                f"{where} line {lineno}: expected {expected} columns, found {len(tokens)}; "
+                "fix or remove that line (every line needs the same columns)"
+            )
+        for col, name in check.items():
+            if not _is_number(tokens[col]):
+                raise PointCloudError(
+                    f"{where} line {lineno}, column {col + 1} ({name}): cannot parse {tokens[col]!r} as a "
+                    "number; fix or remove that line"
+                )
+        if stop_row is not None and row == stop_row:
+            return lineno
+    return None
+
+
+def _resolve(names: list[str], where: str, depth_to_z: bool) -> tuple[int, int, int, bool]:
+    """Column indices of x, y, z and whether z comes from a positive-down depth column."""
+    norm = [_normalize(n) for n in names]
+    found: dict[str, int] = {}
+    for axis, aliases in AXIS_ALIASES.items():
+        hits = [i for i, n in enumerate(norm) if n in aliases]
+        if len(hits) > 1:
+            raise PointCloudError(
+                f"{where}: header columns {[names[i] for i in hits]} all name {axis}; keep one, or pass "
+                "columns=[...] to name the columns explicitly"
+            )
+        if hits:
+            found[axis] = hits[0]
+    from_depth = False
+    if "z" not in found:
+        depth = [i for i, n in enumerate(norm) if n in DEPTH_NAMES]
+        if depth and depth_to_z:
+            found["z"] = depth[0]
+            from_depth = True
+        elif depth:
+            raise PointCloudError(
+                f"{where}: column {names[depth[0]]!r} is depth (positive down) and there is no elevation "
+                "(z) column; pass depth_to_z=True to read z = -depth, or name the column 'z' if it "
+                "already is an elevation (positive up)"
+            )
+    missing = [a for a in "xyz" if a not in found]
+    if missing:
+        if any(n in GEOGRAPHIC_NAMES for n in norm) and ("x" in missing or "y" in missing):
+            raise PointCloudError(
+                f"{where}: columns {names} hold geographic longitude/latitude; project the points to a "
+                "metric CRS (e.g. UTM) first, sonardet works in metres"
+            )
+        raise PointCloudError(
+            f"{where}: cannot find column(s) {missing} among {names}; accepted names: "
+            f"{ {a: list(v) for a, v in AXIS_ALIASES.items()} } (case-insensitive), or pass "
+            "columns=[...] naming every column"
+        )
+    return found["x"], found["y"], found["z"], from_depth
+
+
+def read_text(
+    path: str | Path,
+    *,
+    columns: Sequence[str] | None = None,
+    crs: str | None = None,
+    depth_to_z: bool = False,
+) -> PointCloud:
+    """Read a text point cloud (see the module docstring); xyz float64 metres as written in the file."""
+    p = Path(path)
+    where = str(p)
+    suffix, gz = _base_suffix(p)
+    layout = _peek(p, gz, suffix == ".pts")
+    ncols_first = len(layout.first_tokens)
+
+    if columns is not None:
+        names = [str(c).strip() for c in columns]
+    elif layout.header is not None:
+        names = [h.strip() for h in layout.header]
+    else:
+        names = ["x", "y", "z"] + [f"col{i}" for i in range(3, ncols_first)]
+    if columns is not None and layout.header is not None and len(names) != len(layout.header):
+        raise PointCloudError(
+            f"{where}: columns= names {len(names)} columns but the header has {len(layout.header)}"
+        )
+    if len(names) < 3 and layout.header is None and columns is None:
+        raise PointCloudError(
+            f"{where} line {layout.first_line}: expected at least 3 columns (x y z), found {ncols_first}"
+        )
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise PointCloudError(f"{where}: duplicate column names {dup}; rename them or pass columns=[...]")
+    expected = len(names)
+    xi, yi, zi, from_depth = _resolve(names, where, depth_to_z)
+    xyz_check = {xi: names[xi], yi: names[yi], zi: names[zi]}
+
+    sep_kw: dict = {"sep": r"\s+"} if layout.delim is None else {"sep": layout.delim, "skipinitialspace": True}
+    try:
+        df = pd.read_csv(
+            p,
+            header=None,
+            skiprows=layout.skip,
+            comment="#",
+            engine="c",
+            compression="gzip" if gz else None,
+            encoding=_ENCODING,
+            encoding_errors="replace",
+            skip_blank_lines=True,
+            index_col=False,
+            **sep_kw,
+        )
+    except pd.errors.ParserError as exc:
+        _diagnose(p, gz, layout, expected, xyz_check)
+        raise PointCloudError(f"{where}: cannot parse the file ({exc})") from exc
+    except pd.errors.EmptyDataError as exc:
+        raise PointCloudError(f"{where}: no points") from exc
+    except (OSError, EOFError, UnicodeError) as exc:
+        raise PointCloudError(f"{where}: cannot read the file ({exc})") from exc
+
+    if df.shape[1] != expected:
+        _diagnose(p, gz, layout, expected, xyz_check)
+        raise PointCloudError(f"{where}: expected {expected} columns, the file has {df.shape[1]}")
+    if df.shape[0] == 0:
+        raise PointCloudError(f"{where}: no points")
+
+    # Classify columns: coordinates must be numeric, attributes numeric or dropped text columns.
+    bad_numeric: dict[int, str] = {}
+    keep: list[int] = []
+    for i in range(expected):
+        col = df.iloc[:, i]
+        numeric = pd.api.types.is_numeric_dtype(col) or pd.api.types.is_bool_dtype(col)
+        if i in (xi, yi, zi):
+            if not numeric:
+                bad_numeric[i] = names[i]
+            continue
+        if numeric:
+            keep.append(i)
+        elif _is_number(str(layout.first_tokens[i]) if i < ncols_first else ""):
+            bad_numeric[i] = names[i]
+        else:
+            warnings.warn(f"{where}: column {names[i]!r} is not numeric and is not kept", stacklevel=3)
+    if bad_numeric:
+        _diagnose(p, gz, layout, expected, {**xyz_check, **bad_numeric})
+        raise PointCloudError(f"{where}: columns {list(bad_numeric.values())} hold values that are not numbers")
+
+    if df.isna().to_numpy().any():
+        # Short lines are filled with NaN by the fast reader: find them (and bad tokens) first.
+        _diagnose(p, gz, layout, expected, xyz_check)
+
+    xyz = np.empty((df.shape[0], 3), dtype=np.float64)
+    xyz[:, 0] = df.iloc[:, xi].to_numpy(dtype=np.float64)
+    xyz[:, 1] = df.iloc[:, yi].to_numpy(dtype=np.float64)
+    xyz[:, 2] = df.iloc[:, zi].to_numpy(dtype=np.float64)
+    if from_depth:
+        np.negative(xyz[:, 2], out=xyz[:, 2])
+    finite = np.isfinite(xyz).all(axis=1)
+    if not finite.all():
+        row = int(np.argmin(finite))
+        lineno = _diagnose(p, gz, layout, expected, xyz_check, stop_row=row)
+        lines = {row: lineno} if lineno is not None else None
+        _check_finite(xyz, where, line_of_row=lines)  # raises
+
+    if layout.count is not None and layout.count != xyz.shape[0]:
+        raise PointCloudError(
+            f"{where}: the PTS count line says {layout.count} points but {xyz.shape[0]} were read; "
+            "fix the count line or the truncated file"
+        )
+    attrs = {names[i]: df.iloc[:, i].to_numpy() for i in keep}
+    return PointCloud(xyz, attrs, crs=_merge_crs(None, crs, where), source=where)
+
+
+def write_text(path: str | Path, cloud: PointCloud, *, header: bool | None = None, decimals: int | None = None) -> None:
+    """Write ``cloud`` as text (see the module docstring), atomically."""
+    p = Path(path)
+    where = str(p)
+    suffix, gz = _base_suffix(p)
+    delim = "," if suffix == ".csv" else " "
+    if suffix == ".pts":
+        if header:
+            raise PointCloudError(f"{where}: PTS files have no header line; write .xyz or .csv to keep names")
+        header = False
+    elif header is None:
+        header = suffix == ".csv" or bool(cloud.attributes)
+    if header:
+        for name in cloud.attributes:
+            if delim in name or any(c.isspace() for c in name) or "#" in name:
+                raise PointCloudError(
+                    f"{where}: attribute name {name!r} contains the delimiter, whitespace or '#'; rename it"
+                )
+    if decimals is not None and (not isinstance(decimals, int) or decimals < 0):
+        raise PointCloudError(f"{where}: decimals must be a non-negative int, got {decimals!r}")
+    data = {"x": cloud.xyz[:, 0], "y": cloud.xyz[:, 1], "z": cloud.xyz[:, 2]}
+    for name, values in cloud.attributes.items():
+        data[name] = values.astype(np.uint8) if values.dtype.kind == "b" else values
+    df = pd.DataFrame(data, copy=False)
+    float_format = None if decimals is None else f"%.{decimals}f"
+    with atomic_path(p) as tmp, open(tmp, "wb") as raw:
+        stream = gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) if gz else raw
+        fh = io.TextIOWrapper(stream, encoding="utf-8", newline="")
+        if suffix == ".pts":
+            fh.write(f"{len(cloud)}\n")
+        df.to_csv(fh, sep=delim, header=bool(header), index=False, float_format=float_format, lineterminator="\n")
+        fh.flush()
+        fh.detach()  # leave ``stream`` open: closing it here would close ``raw`` too
+        if gz:
+            stream.close()  # writes the gzip trailer; a GzipFile does not close its ``fileobj``

@@ -1,0 +1,67 @@
+"""The synthetic dataset: scene ids, train/validation/test split, nested training fractions, statistics."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..config import derive_seed
+
+
+def scene_ids(n_scenes: int) -> list[str]:
+    """Scene ids s0000, s0001, ... for n_scenes scenes."""
+    return [f"s{i:04d}" for i in range(n_scenes)]
+
+
+def split_names(fractions) -> list[str]:
+    """Names of the split files: train, val, test and train_{f} per training fraction f (%)."""
+    return ["train", "val", "test"] + [f"train_{int(f)}" for f in fractions]
+
+
+def make_splits(ids: list[str], n_test: int, n_val: int, fractions, seed: int) -> dict[str, list[str]]:
+    """Seeded split. `test` (n_test scenes) is never used for training or tuning; `train` is the
+    rest; `val` (n_val scenes) is a subset of `train` used for threshold tuning and checkpoint
+    choice; `train_{f}` is the first ceil(f% of train) scenes of one fixed random order of the
+    training pool, so smaller fractions are nested in larger ones (25 within 50 within 100)."""
+    if n_test >= len(ids):
+        raise ValueError(f"split.n_test ({n_test}) must be smaller than scenes.n_scenes ({len(ids)})")
+    if n_val > len(ids) - n_test:
+        raise ValueError(f"split.n_val ({n_val}) exceeds the {len(ids) - n_test} training scenes")
+    rng = np.random.default_rng(derive_seed(seed, "split"))
+    perm = [ids[i] for i in rng.permutation(len(ids))]
+    test, pool = perm[:n_test], perm[n_test:]
+    out = {"test": sorted(test), "train": sorted(pool), "val": sorted(pool[:n_val])}
+    order = [pool[i] for i in np.random.default_rng(derive_seed(seed, "fractions")).permutation(len(pool))]
+    for f in fractions:
+        out[f"train_{int(f)}"] = sorted(order[: max(1, math.ceil(len(pool) * f / 100.0))])
+    return out
+
+
+def read_split(path) -> list[str]:
+    """Scene ids listed in a split file (one per line)."""
+    return [s for s in Path(path).read_text().split() if s]
+
+
+def dataset_stats(scene_jsons: dict[str, dict], splits: dict[str, list[str]], classes: list[str]) -> pd.DataFrame:
+    """The source study's dataset table: per split (train, test, all) the number of scenes, objects
+    (visible ones, as evaluated) and per-class counts and shares (%)."""
+    rows = []
+    for name, ids in (("train", splits["train"]), ("test", splits["test"]), ("all", sorted(scene_jsons))):
+        objs = [o for s in ids for o in scene_jsons[s]["objects"] if o["visible"]]
+        row = {"split": name, "scenes": len(ids), "objects": len(objs),
+               "objects_not_visible": sum(1 for s in ids for o in scene_jsons[s]["objects"] if not o["visible"])}
+        for c in classes:
+            n = sum(1 for o in objs if o["cls"] == c)
+            row[f"{c}"] = n
+            row[f"{c}_share_pct"] = round(100.0 * n / len(objs), 1) if objs else 0.0
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def load_scene_meta(path) -> dict:
+    """Read a scene JSON (validation of the contract lives in sonardet.io.annotations)."""
+    return json.loads(Path(path).read_text())

@@ -1,0 +1,462 @@
+"""Physics-based settling of objects on the seabed with MuJoCo.
+
+Bodies (reef elements, rocks) are dropped under gravity onto the seabed heightfield and onto each other
+until every one is at rest; bodies that leave the area, sink through the seabed or never come to rest
+are removed and reported, never silently kept.
+
+Frames and units: scene frame (x east, y north, z up), metres, kilograms, seconds, radians;
+quaternions (w, x, y, z) rotate a body's canonical frame (base centre at the origin, z up) into the
+scene frame. A body's pose is that of its canonical frame, which is also its MuJoCo body frame (the
+free joint's qpos), so poses go in and come out unchanged in meaning.
+
+The MuJoCo model (built with ``mujoco.MjSpec``):
+
+- Seabed: one ``hfield`` geom. MuJoCo places an hfield of ``size = (rx, ry, ez, bz)`` and ``nrow x
+  ncol`` normalised elevations ``e`` in [0, 1] (row 0 = lowest y) so that node (r, c) lies at
+  ``geom_pos + (-rx + 2 rx c / (ncol-1), -ry + 2 ry r / (nrow-1), e[r, c] * ez)`` with a solid base
+  down to ``geom_pos.z - bz``. With ``rx = (nx-1) cell / 2``, ``geom_pos = (x0 + rx, y0 + ry, zmin)``,
+  ``ez = zmax - zmin`` and ``e = (z - zmin) / ez`` the hfield nodes are exactly the
+  :class:`~sonardet.sim.seabed.Heightfield` nodes (tested by dropping boxes). MuJoCo splits each cell
+  into two triangular prisms along the (c, r)-(c+1, r+1) diagonal, as ``Heightfield.faces`` does. Only
+  the part of the heightfield under ``bounds_xy`` (plus a margin) is given to MuJoCo.
+- Bodies: one free joint each and one ``mesh`` geom per convex part (MuJoCo uses the convex hull of a
+  mesh geom's vertices for collisions); the geoms' density is mass / (sum of hull volumes), so the
+  body has the requested mass and the inertia of its parts. Static bodies (``static=True``, e.g. rocks
+  embedded in the seabed) are fixed to the world at their given pose and not simulated.
+- Contact: friction coefficient 0.7 (concrete on sand or gravel is about 0.6-0.8), condim 3, pyramidal
+  cones, MuJoCo's default soft-contact parameters (solref 0.02 s, which needs dt <= 10 ms).
+  multiccd (several contacts per convex-convex pair, default on since MuJoCo 3.3) keeps faces resting
+  on faces stable.
+- Integration: ``implicitfast`` with the Newton solver and dt 4 ms (5 ms still stable for the
+  tetrapod/box scenes tested; smaller steps only cost time); noslip off (no drift at rest was seen
+  without it, and it costs an extra solver pass per step).
+
+"Simulate only bodies not yet at rest": with ``sleep=True`` (default) MuJoCo's island sleeping
+(``mjENBL_SLEEP``, MuJoCo >= 3.3) takes islands of bodies whose velocities stayed below
+``sleep_tolerance`` for 10 steps out of the pipeline: no contacts, no dynamics, until something
+awake touches them. ``benchmarks/physics.py`` measures the saving against ``sleep=False``.
+
+A body is *at rest* when its linear speed < lin_vel_tol and angular speed < ang_vel_tol (or MuJoCo
+has put it to sleep) continuously for settle_window_s; the simulation stops when every remaining
+dynamic body is at rest, or at max_time_s.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from scipy.spatial import ConvexHull
+
+from ..geometry import quat_normalize
+from .seabed import Heightfield
+
+#: Reasons a body can be removed by :func:`settle`.
+REASON_OUT_OF_BOUNDS = "out_of_bounds"  # its centre of mass left bounds_xy (or the terrain)
+REASON_BELOW_TERRAIN = "below_terrain"  # its centre of mass sank below the seabed
+REASON_NOT_SETTLED = "not_settled"      # still moving at max_time_s
+REASON_BAD_START = "bad_start"          # spawned outside bounds_xy or below the seabed
+
+#: A body at rest may still vibrate in place (soft contacts); its instantaneous speeds need only stay
+#: below this multiple of the tolerances, while its net motion over the window must stay below them.
+SPEED_FACTOR = 5.0
+
+
+@dataclass
+class RigidBody:
+    """A body to settle.
+
+    name: unique name. convex_parts: list of (V, 3) float64 vertex arrays in the body's canonical frame
+    (m; base centre at the origin, z up); the union of their convex hulls is the body's solid.
+    mass_kg: total mass. pos (3,): initial position of the canonical frame (m, scene frame).
+    quat (4,): initial orientation (w, x, y, z). static: fixed in place (not simulated, but others
+    collide with it).
+    """
+
+    name: str
+    convex_parts: list
+    mass_kg: float
+    pos: np.ndarray
+    quat: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
+    static: bool = False
+
+    def __post_init__(self):
+        self.pos = np.asarray(self.pos, dtype=np.float64).reshape(3)
+        self.quat = quat_normalize(np.asarray(self.quat, dtype=np.float64).reshape(4))
+        parts = [np.asarray(p, dtype=np.float64) for p in self.convex_parts]
+        if not parts:
+            raise ValueError(f"body {self.name!r}: convex_parts is empty")
+        for k, p in enumerate(parts):
+            if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] < 4 or not np.all(np.isfinite(p)):
+                raise ValueError(f"body {self.name!r}: convex part {k} must be a finite (V>=4, 3) array, "
+                                 f"got shape {p.shape}")
+        self.convex_parts = parts
+        if not (np.isfinite(self.mass_kg) and self.mass_kg > 0):
+            raise ValueError(f"body {self.name!r}: mass_kg must be > 0, got {self.mass_kg}")
+        if not np.all(np.isfinite(self.pos)):
+            raise ValueError(f"body {self.name!r}: pos must be finite, got {self.pos}")
+
+
+@dataclass
+class RemovedBody:
+    """A body removed by :func:`settle`: its name, the reason (REASON_*), sim time (s) and last position (m)."""
+
+    name: str
+    reason: str
+    time_s: float
+    pos: np.ndarray
+
+
+@dataclass
+class SettleResult:
+    """Outcome of :func:`settle`.
+
+    names: kept bodies (input order, static ones included). pos (K, 3) m and quat (K, 4) (w, x, y, z):
+    their final poses in the scene frame. settle_time_s (K,): sim time at which each began its final
+    rest (0 for static bodies). removed: bodies dropped, with reasons. n_steps, sim_time_s: steps taken
+    and simulated time. wall_time_s: time spent stepping (model building excluded); build_time_s: model
+    compile time. all_at_rest: every dynamic body still in play at the end met the rest criterion
+    (False when some were removed as not_settled). initial_penetration_m: deepest overlap (m) between
+    geoms at the start (bodies spawned inside each other or the seabed get pushed apart violently;
+    spawn them clear, e.g. with :func:`place_above`).
+    """
+
+    names: list
+    pos: np.ndarray
+    quat: np.ndarray
+    settle_time_s: np.ndarray
+    removed: list
+    n_steps: int
+    sim_time_s: float
+    wall_time_s: float
+    build_time_s: float
+    all_at_rest: bool
+    initial_penetration_m: float = 0.0
+
+    def pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """(pos (3,), quat (4,)) of a kept body; KeyError (naming the removal reason) otherwise."""
+        try:
+            k = self.names.index(name)
+        except ValueError:
+            why = [r.reason for r in self.removed if r.name == name]
+            raise KeyError(f"body {name!r} is not in the result" + (f" (removed: {why[0]})" if why else "")) from None
+        return self.pos[k].copy(), self.quat[k].copy()
+
+    @property
+    def removed_names(self) -> list:
+        """Names of the removed bodies."""
+        return [r.name for r in self.removed]
+
+
+def _hull_volume(v: np.ndarray) -> float:
+    """Volume (m^3) of the convex hull of points v (V, 3); 0 for flat or degenerate sets."""
+    try:
+        return float(ConvexHull(v).volume)
+    except Exception:  # noqa: BLE001 - qhull raises for coplanar/degenerate input
+        return 0.0
+
+
+def _physics_heightfield(hf: Heightfield, bounds_xy, margin_m: float, cell_m: float | None) -> Heightfield:
+    """The part of hf MuJoCo needs: bounds_xy grown by margin_m, optionally resampled to cell_m."""
+    xmin, xmax, ymin, ymax = bounds_xy
+    sub = hf.crop(max(xmin - margin_m, hf.x0), min(xmax + margin_m, hf.x1),
+                  max(ymin - margin_m, hf.y0), min(ymax + margin_m, hf.y1))
+    if cell_m is not None and abs(cell_m - sub.cell_m) > 1e-12:
+        sub = sub.resample(cell_m)
+    return sub
+
+
+def build_model(bodies: list[RigidBody], hf: Heightfield, *, dt_s: float = 0.004, friction: float = 0.7,
+                sleep: bool = True, sleep_tolerance: float = 1e-3, base_m: float = 1.0,
+                solver: str = "newton", seabed_condim: int = 6, rolling_resistance: float = 0.02,
+                cone: str = "elliptic", noslip_iterations: int = 0,
+                solref_timeconst_s: float = 0.02, impratio: float = 10.0) -> tuple[mujoco.MjModel, dict]:
+    """Compile the MuJoCo model of the seabed hf and the bodies (see the module docstring).
+
+    Returns (model, info) where info maps 'body_ids' (MuJoCo body id per dynamic input body, -1 for
+    static ones), 'geom_ids' (list of geom id arrays per input body), 'qpos_adr' and 'qvel_adr'
+    (address of each dynamic body's free joint in qpos/qvel, -1 for static), 'hfield_geom'.
+    base_m: thickness (m) of the solid base MuJoCo puts under the lowest seabed point.
+    """
+    spec = mujoco.MjSpec()
+    spec.modelname = "sonardet_settle"
+    opt = spec.option
+    opt.timestep = float(dt_s)
+    opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG,
+                  "pgs": mujoco.mjtSolver.mjSOL_PGS}[solver]
+    opt.cone = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}[cone]
+    opt.gravity = [0.0, 0.0, -9.81]
+    opt.noslip_iterations = int(noslip_iterations)
+    opt.impratio = float(impratio)
+
+    opt.sleep_tolerance = float(sleep_tolerance)
+    if sleep:
+        opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+
+    # seabed
+    z = hf.z
+    zmin, zmax = float(z.min()), float(z.max())
+    ez = max(zmax - zmin, 1e-6)
+    rx = 0.5 * (hf.nx - 1) * hf.cell_m
+    ry = 0.5 * (hf.ny - 1) * hf.cell_m
+    hfield = spec.add_hfield(name="seabed", size=[rx, ry, ez, float(base_m)], nrow=hf.ny, ncol=hf.nx)
+    hfield.userdata = ((z - zmin) / ez).astype(np.float32).ravel().tolist()
+    spec.worldbody.add_geom(name="seabed", type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="seabed",
+                            pos=[hf.x0 + rx, hf.y0 + ry, zmin],
+                            friction=[friction, 0.0, 0.0], condim=seabed_condim,
+                            solref=[float(solref_timeconst_s), 1.0])
+
+    mesh_names: dict[bytes, str] = {}
+    hull_vol: dict[str, float] = {}
+    for b in bodies:
+        for p in b.convex_parts:
+            key = p.tobytes()
+            if key not in mesh_names:
+                mname = f"hull{len(mesh_names)}"
+                mesh_names[key] = mname
+                spec.add_mesh(name=mname, uservert=p.astype(np.float64).ravel().tolist())
+                hull_vol[mname] = _hull_volume(p)
+
+    geom_names = []
+    for bi, b in enumerate(bodies):
+        parts = [mesh_names[p.tobytes()] for p in b.convex_parts]
+        vol = sum(hull_vol[m] for m in parts)
+        if vol <= 0:
+            raise ValueError(f"body {b.name!r}: its convex parts have zero volume")
+        density = b.mass_kg / vol
+        # rolling / torsional resistance on the seabed (lengths, m) scale with the body's size:
+        # coefficient rolling_resistance times its bounding radius (MuJoCo takes the larger of the two
+        # geoms' values, and the seabed's are 0)
+        radius = float(np.max(np.linalg.norm(np.vstack(b.convex_parts) - np.vstack(b.convex_parts).mean(0), axis=1)))
+        roll = rolling_resistance * radius
+        body = spec.worldbody.add_body(name=f"b{bi}", pos=b.pos.tolist(), quat=b.quat.tolist())
+        if not b.static:
+            body.add_freejoint()
+        names = []
+        for k, mname in enumerate(parts):
+            gname = f"b{bi}_g{k}"
+            body.add_geom(name=gname, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mname, density=density,
+                          friction=[friction, roll, roll], condim=3,
+                          solref=[float(solref_timeconst_s), 1.0])
+            names.append(gname)
+        geom_names.append(names)
+
+    model = spec.compile()
+    info = {"body_ids": [], "geom_ids": [], "qpos_adr": [], "qvel_adr": [],
+            "hfield_geom": mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "seabed")}
+    for bi, b in enumerate(bodies):
+        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"b{bi}")
+        info["geom_ids"].append(np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, g)
+                                          for g in geom_names[bi]], dtype=np.int64))
+        if b.static:
+            info["body_ids"].append(-1)
+            info["qpos_adr"].append(-1)
+            info["qvel_adr"].append(-1)
+        else:
+            jid = model.body_jntadr[bid]
+            info["body_ids"].append(bid)
+            info["qpos_adr"].append(int(model.jnt_qposadr[jid]))
+            info["qvel_adr"].append(int(model.jnt_dofadr[jid]))
+    return model, info
+
+
+def settle(bodies: list[RigidBody], heightfield: Heightfield, *, rng: np.random.Generator,
+           max_time_s: float = 10.0, dt_s: float = 0.004, lin_vel_tol: float = 0.01,
+           ang_vel_tol: float = 0.02, settle_window_s: float = 0.3, bounds_xy=None,
+           friction: float = 0.7, sleep: bool = True, sleep_tolerance: float = 1e-3,
+           below_terrain_m: float = 0.2, perturb_ang_vel_rad_s: float = 0.02,
+           hfield_cell_m: float | None = None, hfield_margin_m: float = 2.0,
+           solver: str = "newton", **model_options) -> SettleResult:
+    """Drop the bodies under gravity onto the heightfield (and each other) until all are at rest.
+
+    bodies: list of :class:`RigidBody` (unique names). heightfield: the seabed (scene frame, m).
+    rng: draws a small random initial angular velocity per dynamic body (magnitude
+    perturb_ang_vel_rad_s, rad/s) that breaks exact balance on an edge or a tip; same rng state, same
+    inputs -> identical result. dt_s: time step (s). max_time_s: simulated-time limit (s).
+    lin_vel_tol (m/s), ang_vel_tol (rad/s), settle_window_s (s): the rest criterion (module docstring).
+    bounds_xy: (xmin, xmax, ymin, ymax) (m) a body's centre of mass must stay in; default: the
+    heightfield's extent. friction: sliding friction coefficient for bodies without their own.
+    sleep: use MuJoCo's island sleeping for bodies at rest (False = simulate everything every step;
+    same rest criterion). sleep_tolerance: MuJoCo's sleep velocity threshold (m/s).
+    below_terrain_m: a body whose centre of mass is more than this below the seabed under it has
+    fallen through and is removed. hfield_cell_m: resample the seabed for the physics (None: as
+    given). hfield_margin_m: seabed kept around bounds_xy (m).
+
+    Removed bodies (reasons REASON_*): spawned outside bounds_xy or with the centre of mass below the
+    seabed (bad_start, never simulated), centre of mass left bounds_xy (out_of_bounds), sank
+    (below_terrain), still moving at max_time_s (not_settled). A removed body stops colliding at once.
+    """
+    names = [b.name for b in bodies]
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise ValueError(f"body names must be unique; duplicated: {dup}")
+    if not (dt_s > 0 and max_time_s > 0 and settle_window_s >= 0):
+        raise ValueError("dt_s and max_time_s must be > 0 and settle_window_s >= 0")
+    if bounds_xy is None:
+        bounds_xy = heightfield.extent_xy
+    xmin, xmax, ymin, ymax = (float(v) for v in bounds_xy)
+    if not (xmax > xmin and ymax > ymin):
+        raise ValueError(f"bounds_xy must be (xmin, xmax, ymin, ymax) with max > min, got {bounds_xy}")
+
+    # ---- reject bad starts (before building, so they cannot disturb others)
+    removed: list[RemovedBody] = []
+    keep = []
+    for b in bodies:
+        com0 = b.pos  # approximate: the check uses the canonical origin at spawn
+        inside = xmin <= com0[0] <= xmax and ymin <= com0[1] <= ymax and bool(heightfield.contains(com0[0], com0[1]))
+        if not inside:
+            removed.append(RemovedBody(b.name, REASON_BAD_START, 0.0, b.pos.copy()))
+            continue
+        h = float(heightfield.height_at(com0[0], com0[1]))
+        top = max(float((p @ _rot(b.quat).T)[:, 2].max()) for p in b.convex_parts) + b.pos[2]
+        if top < h - below_terrain_m:
+            removed.append(RemovedBody(b.name, REASON_BAD_START, 0.0, b.pos.copy()))
+            continue
+        keep.append(b)
+
+    t_build = time.perf_counter()
+    phys_hf = _physics_heightfield(heightfield, (xmin, xmax, ymin, ymax), hfield_margin_m, hfield_cell_m)
+    model, info = build_model(keep, phys_hf, dt_s=dt_s, friction=friction, sleep=sleep,
+                              sleep_tolerance=sleep_tolerance, solver=solver,
+                              **model_options)
+    data = mujoco.MjData(model)
+    build_time = time.perf_counter() - t_build
+
+    dyn = np.array([k for k, b in enumerate(keep) if not b.static], dtype=np.int64)
+    qvel_adr = np.array([info["qvel_adr"][k] for k in dyn], dtype=np.int64)
+    qpos_adr = np.array([info["qpos_adr"][k] for k in dyn], dtype=np.int64)
+    body_ids = np.array([info["body_ids"][k] for k in dyn], dtype=np.int64)
+
+    # small random spin (body frame) breaks exact balance; drawn in input order, deterministic
+    for a in qvel_adr:
+        w = rng.normal(size=3)
+        w *= perturb_ang_vel_rad_s / max(np.linalg.norm(w), 1e-12)
+        data.qvel[a + 3:a + 6] = w
+    mujoco.mj_forward(model, data)
+    init_pen = float(max(0.0, -data.contact.dist[:data.ncon].min())) if data.ncon else 0.0
+
+    n = dyn.size
+    active = np.ones(n, bool)           # not removed
+    rest = np.zeros(n, bool)            # rest criterion met at the current step
+    rest_since = np.full(n, np.nan)     # start of the current rest period (sim time, s)
+    lin_idx = qvel_adr[:, None] + np.arange(3)[None, :]
+    ang_idx = lin_idx + 3
+    pos_idx = qpos_adr[:, None] + np.arange(3)[None, :]
+    quat_idx = qpos_adr[:, None] + np.arange(3, 7)[None, :]
+    window = max(1, int(round(settle_window_s / dt_s)))
+    max_disp = lin_vel_tol * window * dt_s      # allowed net motion over the window (m)
+    max_turn = ang_vel_tol * window * dt_s      # allowed net rotation over the window (rad)
+    hist_pos = np.empty((window, n, 3))         # ring buffer of poses over the last window
+    hist_quat = np.empty((window, n, 4))
+    check_every = max(1, int(round(0.05 / dt_s)))  # bounds / sinking checks every ~50 ms
+    max_steps = int(np.ceil(max_time_s / dt_s))
+    removed_dyn = {}
+
+    def remove(k: int, reason: str):
+        active[k] = False
+        g = info["geom_ids"][dyn[k]]
+        model.geom_contype[g] = 0
+        model.geom_conaffinity[g] = 0
+        removed_dyn[k] = RemovedBody(keep[dyn[k]].name, reason, float(data.time),
+                                     data.xipos[body_ids[k]].copy())
+
+    t0 = time.perf_counter()
+    steps = 0
+    while steps < max_steps and n and active.any():
+        slot = steps % window
+        hist_pos[slot] = data.qpos[pos_idx]
+        hist_quat[slot] = data.qpos[quat_idx]
+        mujoco.mj_step(model, data)
+        steps += 1
+        if steps >= window:
+            old = (slot + 1) % window  # pose `window` steps before now
+            disp = np.linalg.norm(data.qpos[pos_idx] - hist_pos[old], axis=1)
+            dot = np.abs(np.einsum("ij,ij->i", data.qpos[quat_idx], hist_quat[old]))
+            turn = 2.0 * np.arccos(np.minimum(dot / np.linalg.norm(data.qpos[quat_idx], axis=1)
+                                              / np.linalg.norm(hist_quat[old], axis=1), 1.0))
+            v = data.qvel
+            lin = np.linalg.norm(v[lin_idx], axis=1)
+            ang = np.linalg.norm(v[ang_idx], axis=1)
+            now = ((disp < max_disp) & (turn < max_turn)
+                   & (lin < SPEED_FACTOR * lin_vel_tol) & (ang < SPEED_FACTOR * ang_vel_tol))
+            rest_since[now & ~rest] = data.time - window * dt_s
+            rest = now
+        if steps % check_every == 0:
+            com = data.xipos[body_ids]
+            h = heightfield.height_at(com[:, 0], com[:, 1])
+            out = ((com[:, 0] < xmin) | (com[:, 0] > xmax) | (com[:, 1] < ymin) | (com[:, 1] > ymax)
+                   | np.isnan(h))
+            for k in np.flatnonzero(out & active):
+                remove(int(k), REASON_OUT_OF_BOUNDS)
+            sunk = ~out & (com[:, 2] < h - below_terrain_m)
+            for k in np.flatnonzero(sunk & active):
+                remove(int(k), REASON_BELOW_TERRAIN)
+        if np.all(rest[active]):
+            break
+    wall = time.perf_counter() - t0
+
+    all_at_rest = bool(np.all(rest[active]))
+    for k in np.flatnonzero(active & ~rest):
+        remove(int(k), REASON_NOT_SETTLED)
+
+    # ---- assemble, input order
+    dyn_pos = {int(d): j for j, d in enumerate(dyn)}
+    out_names, out_pos, out_quat, out_t = [], [], [], []
+    removed_by_name = {r.name: r for r in removed}
+    for r in removed_dyn.values():
+        removed_by_name[r.name] = r
+    for kk, b in enumerate(keep):
+        if b.name in removed_by_name:
+            continue
+        out_names.append(b.name)
+        if b.static:
+            out_pos.append(b.pos.copy())
+            out_quat.append(b.quat.copy())
+            out_t.append(0.0)
+        else:
+            j = dyn_pos[kk]
+            qp = data.qpos[qpos_adr[j]:qpos_adr[j] + 7]
+            out_pos.append(qp[:3].copy())
+            out_quat.append(quat_normalize(qp[3:7].copy()))
+            out_t.append(float(rest_since[j]))
+    removed_list = [removed_by_name[nm] for nm in names if nm in removed_by_name]
+    return SettleResult(
+        names=out_names,
+        pos=np.array(out_pos, dtype=np.float64).reshape(-1, 3),
+        quat=np.array(out_quat, dtype=np.float64).reshape(-1, 4),
+        settle_time_s=np.array(out_t, dtype=np.float64),
+        removed=removed_list,
+        n_steps=steps,
+        sim_time_s=float(data.time),
+        wall_time_s=wall,
+        build_time_s=build_time,
+        all_at_rest=all_at_rest,
+        initial_penetration_m=init_pen,
+    )
+
+
+def place_above(convex_parts, quat, xy, heightfield: Heightfield, clearance_m: float = 0.05) -> np.ndarray:
+    """Spawn position (3,) (m) putting a body's canonical origin above scene point xy so that its lowest
+    point, in orientation quat (w, x, y, z), is clearance_m above the highest seabed node under its
+    footprint (conservative: the body starts clear of the seabed anywhere under it)."""
+    R = _rot(quat_normalize(np.asarray(quat, dtype=np.float64)))
+    v = np.vstack([np.asarray(p, dtype=np.float64) for p in convex_parts]) @ R.T
+    x, y = float(xy[0]), float(xy[1])
+    lo = v[:, :2].min(0) + (x, y)
+    hi = v[:, :2].max(0) + (x, y)
+    if not (heightfield.contains(lo[0], lo[1]) and heightfield.contains(hi[0], hi[1])):
+        raise ValueError(f"footprint {lo.tolist()}-{hi.tolist()} of a body at {(x, y)} is not inside the "
+                         f"heightfield extent {heightfield.extent_xy}")
+    top = float(heightfield.crop(lo[0], max(hi[0], lo[0] + 1e-6), lo[1], max(hi[1], lo[1] + 1e-6)).z.max())
+    return np.array([x, y, top - float(v[:, 2].min()) + clearance_m])
+
+
+def _rot(q) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (w, x, y, z)."""
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])

@@ -1,0 +1,280 @@
+"""Scene synthesis: seabed, rocks, physically settled reef elements, an MBES survey, annotations.
+
+Frames and units: scene frame (x east, y north, z up, metres); the transducer runs at
+`survey.transducer_z_m` (default 0) over a seabed near `seabed.mean_depth_m`. The scene rectangle
+is [0, extent_x] x [0, extent_y]; the seabed mesh extends beyond it so outer beams see seabed.
+
+Steps (each with its own seed derived from the config seed and the scene id):
+1. seabed heightfield (fBm), 2. layout of the objects per class, 3. rocks (static clutter, partly
+buried), 4. MuJoCo settling of the objects (rocks act as fixed obstacles), 5. survey lines along
+x, y or both, 6. Embree ray casting, per line only against the geometry inside its swath
+("model only what the scene needs"), 7. annotations: pose, box, number of soundings, visibility.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import SCHEMA_VERSION
+from ..config import config_hash, derive_seed
+from ..geometry import quat_to_matrix
+from ..io.atomic import atomic_path, atomic_write_text
+from ..objects import ObjectInfo
+from ..objects.catalog import canonical_box
+from .layout import plan_layout
+from .mbes import RaycastTarget, SensorConfig, Soundings, scan, survey_lines, swath_half_width_m
+from .physics import RigidBody, settle
+from .rocks import make_rock
+from .seabed import make_seabed
+
+log = logging.getLogger(__name__)
+
+SEABED_ID = -2
+ROCK_ID = -3
+
+
+@dataclass
+class Scene:
+    """A synthesized scene: soundings (xyz float64 (N,3), ping, beam, line, label = object index or -1)
+    and its metadata (the JSON contract of DESIGN.md section 3)."""
+
+    xyz: np.ndarray
+    ping: np.ndarray
+    beam: np.ndarray
+    line: np.ndarray
+    label: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+
+def _class_counts(cfg: dict, classes: list[str], rng) -> dict:
+    n = int(rng.integers(cfg["n_objects"][0], cfg["n_objects"][1] + 1))
+    mix = np.array([cfg["class_mix"].get(c, 0.0) for c in classes], dtype=np.float64)
+    if mix.sum() <= 0:
+        raise ValueError("scenes.class_mix gives zero weight to every configured class")
+    counts = rng.multinomial(n, mix / mix.sum())
+    return {c: int(k) for c, k in zip(classes, counts)}
+
+
+def _swath_rect(traj, line: int, half_width: float, margin: float):
+    pos = traj.position[traj.line == line]
+    heading = traj.heading_rad[traj.line == line][0]
+    along_x = abs(np.cos(heading)) > 0.5
+    lo, hi = pos[:, :2].min(0), pos[:, :2].max(0)
+    if along_x:
+        return lo[0] - margin, hi[0] + margin, lo[1] - half_width - margin, hi[1] + half_width + margin
+    return lo[0] - half_width - margin, hi[0] + half_width + margin, lo[1] - margin, hi[1] + margin
+
+
+def _overlaps(bounds_xy, rect) -> bool:
+    (x0, y0), (x1, y1) = bounds_xy
+    return not (x1 < rect[0] or x0 > rect[1] or y1 < rect[2] or y0 > rect[3])
+
+
+def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], cull: bool | None = None) -> Scene:
+    """Synthesize one scene from the validated config and the class models. Deterministic for a
+    (config, scene_id) pair. cull overrides `scenes.cull_to_swath` (benchmarks compare both)."""
+    sc = config["scenes"]
+    seed = derive_seed(config["seed"], "scene", scene_id)
+    rngs = {k: np.random.default_rng(derive_seed(seed, k)) for k in
+            ("seabed", "layout", "rocks", "physics", "survey", "sensor")}
+    timings = {}
+    ex, ey = sc["extent_m"]
+    extent = (0.0, float(ex), 0.0, float(ey))
+    sensor = SensorConfig.from_dict(config["sensor"])
+    sb = sc["seabed"]
+    sv = sc["survey"]
+    altitude = sv["transducer_z_m"] - sb["mean_depth_m"]
+    if altitude <= 0:
+        raise ValueError(
+            f"scenes.seabed.mean_depth_m ({sb['mean_depth_m']} m) must lie below scenes.survey.transducer_z_m "
+            f"({sv['transducer_z_m']} m)"
+        )
+
+    t0 = time.perf_counter()
+    r = rngs["seabed"]
+    hf = make_seabed(
+        extent_m=(ex, ey), cell_m=sb["cell_m"], mean_depth_m=sb["mean_depth_m"],
+        slope_deg=r.uniform(*sb["slope_deg"]), slope_azimuth_deg=r.uniform(0, 360),
+        amplitude_m=r.uniform(*sb["amplitude_m"]), base_wavelength_m=sb["base_wavelength_m"],
+        octaves=sb["octaves"], persistence=sb["persistence"], roughness_m=sb["roughness_m"],
+        margin_m=sb["margin_m"], rng=r,
+    )
+    timings["seabed_s"] = time.perf_counter() - t0
+
+    # Layout.
+    t0 = time.perf_counter()
+    classes = list(objects)
+    counts = _class_counts(sc, classes, rngs["layout"]) if classes else {}
+    verts = {c: np.asarray(o.mesh.vertices) for c, o in objects.items()}
+    radius = {c: float(np.max(np.hypot(v[:, 0], v[:, 1]))) for c, v in verts.items()}
+    height = {c: float(o.extents_m[2]) for c, o in objects.items()}
+    spawns, unplaced = plan_layout(counts, radius, height, verts, extent, sc,
+                                   lambda x, y: float(hf.height_at(x, y)), rngs["layout"])
+    for msg in unplaced:
+        log.warning("%s: %s", scene_id, msg)
+
+    # Rocks: static clutter, partly buried, away from the objects' spawn footprints.
+    r = rngs["rocks"]
+    n_rocks = int(r.integers(sc["n_rocks"][0], sc["n_rocks"][1] + 1))
+    rocks, rock_meta = [], []
+    spawn_xy = np.array([s.t[:2] for s in spawns]) if spawns else np.zeros((0, 2))
+    spawn_r = np.array([radius[s.cls] for s in spawns])
+    for k in range(n_rocks):
+        size = float(np.exp(r.uniform(np.log(sc["rock_size_m"][0]), np.log(sc["rock_size_m"][1]))))
+        mesh = make_rock(size, r)
+        for _ in range(200):
+            x, y = r.uniform(0, ex), r.uniform(0, ey)
+            if len(spawn_xy) == 0 or np.all(np.hypot(*(spawn_xy - [x, y]).T) > spawn_r + 0.6 * size + 0.1):
+                break
+        else:
+            log.warning("%s: no free spot for rock %d (%.2f m); not placed", scene_id, k, size)
+            continue
+        bury = sc["rock_burial"] * mesh.extents[2]
+        z = float(hf.height_at(x, y)) - bury
+        rocks.append((mesh, np.array([x, y, z])))
+        rock_meta.append({"size_m": size, "pos": [x, y, z]})
+    timings["layout_s"] = time.perf_counter() - t0
+
+    # Physics.
+    t0 = time.perf_counter()
+    ph = sc["physics"]
+    bodies = [RigidBody(f"o{k}", objects[s.cls].convex_parts, objects[s.cls].mass_kg, s.t, s.q)
+              for k, s in enumerate(spawns)]
+    bodies += [RigidBody(f"rock{k}", [np.asarray(m.vertices)], 1.0, pos, static=True)
+               for k, (m, pos) in enumerate(rocks)]
+    removed = []
+    if spawns:
+        res = settle(bodies, hf, rng=rngs["physics"], max_time_s=ph["max_time_s"], dt_s=ph["dt_s"],
+                     lin_vel_tol=ph["lin_vel_tol"], ang_vel_tol=ph["ang_vel_tol"],
+                     settle_window_s=ph["settle_window_s"], bounds_xy=extent, friction=ph["friction"])
+        gone_rocks = {int(rb.name[4:]) for rb in res.removed if rb.name.startswith("rock")}
+        for k in sorted(gone_rocks):
+            log.warning("%s: rock %d rejected by the physics (%s); not scanned", scene_id, k, "bad start")
+            rock_meta[k]["removed"] = True
+        rocks = [r for k, r in enumerate(rocks) if k not in gone_rocks]
+        for rb in res.removed:
+            if rb.name.startswith("rock"):
+                continue
+            k = int(rb.name[1:])
+            removed.append({"cls": spawns[k].cls, "reason": rb.reason, "arrangement": spawns[k].arrangement})
+            log.warning("%s: removed %s (%s) during settling: %s", scene_id, rb.name, spawns[k].cls, rb.reason)
+        kept = [(int(n[1:]), res.pos[i], res.quat[i]) for i, n in enumerate(res.names) if n.startswith("o")]
+        phys = {"n_steps": res.n_steps, "sim_time_s": res.sim_time_s, "all_at_rest": res.all_at_rest}
+    else:
+        kept, phys = [], {"n_steps": 0, "sim_time_s": 0.0, "all_at_rest": True}
+    timings["physics_s"] = time.perf_counter() - t0
+
+    # Survey and scan.
+    t0 = time.perf_counter()
+    direction = str(rngs["survey"].choice(sv["directions"]))
+    traj = survey_lines(extent, direction, sv["transducer_z_m"], altitude, sv["overlap"], sensor,
+                        run_in_m=sv["run_in_m"])
+    rocks = [m.copy().apply_translation(pos) for m, pos in rocks]
+    posed = []
+    for idx, (k, t, q) in enumerate(kept):
+        obj = objects[spawns[k].cls]
+        v = obj.mesh.vertices @ quat_to_matrix(q).T + t
+        posed.append((v, np.asarray(obj.mesh.faces), idx))
+    zmin = float(hf.z.min())
+    half = swath_half_width_m(sensor, sv["transducer_z_m"] - zmin)
+    do_cull = sc["cull_to_swath"] if cull is None else cull
+    parts, n_tri = [], 0
+    lines = np.unique(traj.line)
+    full_target = None
+    for ln in lines:
+        sel = traj.line == ln
+        sub = type(traj)(traj.position[sel], traj.heading_rad[sel], traj.line[sel])
+        if do_cull:
+            rect = _swath_rect(traj, ln, half, 1.0)
+            hfc = hf.crop(*rect)
+            meshes = [(hfc.vertices(), hfc.faces())]
+            ids = [SEABED_ID]
+            for v, f, idx in posed:
+                if _overlaps((v[:, :2].min(0), v[:, :2].max(0)), rect):
+                    meshes.append((v, f))
+                    ids.append(idx)
+            for m in rocks:
+                if _overlaps(m.bounds[:, :2], rect):
+                    meshes.append((m.vertices, m.faces))
+                    ids.append(ROCK_ID)
+            target = RaycastTarget(meshes, ids)
+        else:
+            if full_target is None:
+                meshes = [(hf.vertices(), hf.faces())] + [(v, f) for v, f, _ in posed] + \
+                         [(m.vertices, m.faces) for m in rocks]
+                ids = [SEABED_ID] + [idx for _, _, idx in posed] + [ROCK_ID] * len(rocks)
+                full_target = RaycastTarget(meshes, ids)
+            target = full_target
+        n_tri += target.n_triangles
+        first_ping = int(np.flatnonzero(sel)[0])
+        parts.append(scan(target, sub, sensor, rngs["sensor"], ping_offset=first_ping))
+    snd = Soundings.concatenate(parts)
+    inside = (snd.xyz[:, 0] >= 0) & (snd.xyz[:, 0] <= ex) & (snd.xyz[:, 1] >= 0) & (snd.xyz[:, 1] <= ey)
+    timings["scan_s"] = time.perf_counter() - t0
+    label = np.where(snd.mesh >= 0, snd.mesh, -1).astype(np.int32)[inside]
+
+    # Annotations.
+    n_pts = np.bincount(label[label >= 0], minlength=len(kept))
+    objs = []
+    for idx, (k, t, q) in enumerate(kept):
+        sp = spawns[k]
+        obj = objects[sp.cls]
+        box = canonical_box(obj.mesh.vertices, t, q, obj.symmetry_order)
+        objs.append({
+            "id": idx, "cls": sp.cls,
+            "pose": {"t": [float(v) for v in t], "q": [float(v) for v in q]},
+            "box": [float(v) for v in box],
+            "n_points": int(n_pts[idx]),
+            "visible": bool(n_pts[idx] >= sc["min_points_visible"]),
+            "arrangement": sp.arrangement, "group": int(sp.group), "layer": int(sp.layer),
+        })
+    meta = {
+        "schema_version": SCHEMA_VERSION,
+        "scene": scene_id,
+        "seed": int(seed),
+        "config_hash": config_hash({k: config[k] for k in ("seed", "classes", "objects", "sensor", "scenes")}),
+        "extent": list(extent),
+        "survey": {"direction": direction, "n_lines": int(len(lines)), "n_pings": int(len(traj)),
+                   "altitude_m": float(altitude)},
+        "seabed": {"mean_depth_m": sb["mean_depth_m"], "cell_m": sb["cell_m"]},
+        "objects": objs,
+        "removed": removed,
+        "unplaced": unplaced,
+        "rocks": rock_meta,
+        "physics": phys,
+        "stats": {"n_points": int(inside.sum()), "n_rays": int(snd.n_rays), "n_dropped": int(snd.n_dropped),
+                  "triangles_cast": int(n_tri), "culled": bool(do_cull),
+                  "points_per_m2": float(inside.sum() / (ex * ey))},
+        "timings_s": timings,
+    }
+    return Scene(snd.xyz[inside], snd.ping[inside], snd.beam[inside], snd.line[inside], label, meta)
+
+
+def save_scene(scene: Scene, npz_path, json_path) -> None:
+    """Write the soundings (.npz) and the metadata (.json), each atomically."""
+    with atomic_path(npz_path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, xyz=scene.xyz, ping=scene.ping, beam=scene.beam, line=scene.line, label=scene.label)
+    atomic_write_text(json_path, json.dumps(scene.meta, indent=1))
+
+
+def load_scene_points(npz_path) -> dict:
+    """Read a scene's soundings; validates shapes, dtype and finiteness (errors name the file)."""
+    with np.load(npz_path, allow_pickle=False) as z:
+        out = {k: z[k] for k in z.files}
+    xyz = out.get("xyz")
+    if xyz is None or xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError(f"{npz_path}: 'xyz' must be an (N,3) array")
+    if xyz.dtype != np.float64:
+        raise ValueError(f"{npz_path}: 'xyz' must be float64, found {xyz.dtype}")
+    if not np.all(np.isfinite(xyz)):
+        raise ValueError(f"{npz_path}: 'xyz' holds NaN/Inf at row {int(np.flatnonzero(~np.isfinite(xyz).all(1))[0])}")
+    for k in ("ping", "beam", "line", "label"):
+        if k in out and len(out[k]) != len(xyz):
+            raise ValueError(f"{npz_path}: '{k}' has {len(out[k])} entries for {len(xyz)} points")
+    return out

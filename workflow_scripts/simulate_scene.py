@@ -1,0 +1,22 @@
+"""Synthesize one scene: seabed, rocks, settled objects, MBES survey, annotations."""
+
+import os
+import sys
+
+sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+
+from sonardet.objects import load_object
+from sonardet.sim.scene import save_scene, simulate_scene
+from sonardet.workflow import rule_logging
+
+with rule_logging(snakemake, "simulate_scene") as log:  # noqa: F821
+    smk = snakemake  # noqa: F821
+    cfg = smk.params.config
+    objects = {os.path.basename(p)[: -len(".json")]: load_object(p) for p in smk.input.meta}
+    scene = simulate_scene(smk.wildcards.scene, cfg, objects)
+    save_scene(scene, smk.output.npz, smk.output.json)
+    m = scene.meta
+    log.info("%s: %d objects (%d visible), %d removed, %d points (%.0f /m^2), %s lines, timings %s",
+             smk.wildcards.scene, len(m["objects"]), sum(o["visible"] for o in m["objects"]), len(m["removed"]),
+             m["stats"]["n_points"], m["stats"]["points_per_m2"], m["survey"]["direction"],
+             {k: round(v, 2) for k, v in m["timings_s"].items()})
