@@ -25,7 +25,7 @@ from sonardet.io.pointcloud import PointCloud, read_points
 
 
 def _real_file() -> Path | None:
-    """The R2Sonic survey line of /work/shared/data/real (or $SONARDET_REAL_DATA), if present."""
+    """The R2Sonic survey line of ../shared/data/real (or $SONARDET_REAL_DATA), if present."""
     candidates = [
         os.environ.get("SONARDET_REAL_DATA", ""),
         str(Path(__file__).resolve().parents[1] / "shared" / "data" / "real"),
