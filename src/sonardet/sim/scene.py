@@ -151,7 +151,8 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
     if spawns:
         res = settle(bodies, hf, rng=rngs["physics"], max_time_s=ph["max_time_s"], dt_s=ph["dt_s"],
                      lin_vel_tol=ph["lin_vel_tol"], ang_vel_tol=ph["ang_vel_tol"],
-                     settle_window_s=ph["settle_window_s"], bounds_xy=extent, friction=ph["friction"])
+                     settle_window_s=ph["settle_window_s"], bounds_xy=extent, friction=ph["friction"],
+                     sleep=ph["sleep"])
         gone_rocks = {int(rb.name[4:]) for rb in res.removed if rb.name.startswith("rock")}
         for k in sorted(gone_rocks):
             log.warning("%s: rock %d rejected by the physics (%s); not scanned", scene_id, k, "bad start")
@@ -164,7 +165,8 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
             removed.append({"cls": spawns[k].cls, "reason": rb.reason, "arrangement": spawns[k].arrangement})
             log.warning("%s: removed %s (%s) during settling: %s", scene_id, rb.name, spawns[k].cls, rb.reason)
         kept = [(int(n[1:]), res.pos[i], res.quat[i]) for i, n in enumerate(res.names) if n.startswith("o")]
-        phys = {"n_steps": res.n_steps, "sim_time_s": res.sim_time_s, "all_at_rest": res.all_at_rest}
+        phys = {"n_steps": res.n_steps, "sim_time_s": res.sim_time_s, "all_at_rest": res.all_at_rest,
+                "step_wall_s": res.wall_time_s, "build_s": res.build_time_s}
     else:
         kept, phys = [], {"n_steps": 0, "sim_time_s": 0.0, "all_at_rest": True}
     timings["physics_s"] = time.perf_counter() - t0
