@@ -11,6 +11,7 @@ configfile: "config/config.yaml"
 include: "rules/common.smk"
 include: "rules/objects.smk"
 include: "rules/scenes.smk"
+include: "rules/evaluate.smk"
 
 
 rule all:

@@ -53,7 +53,7 @@ def main():
                      "points_per_m2": m["stats"]["points_per_m2"], "rays": m["stats"]["n_rays"],
                      "rays_per_s": m["stats"]["n_rays"] / m["timings_s"]["scan_s"],
                      "objects": len(m["objects"]), "direction": m["survey"]["direction"],
-                     "physics_steps": m["physics"]["n_steps"], "physics_step_s": m["physics"].get("step_wall_s")})
+                     "physics_steps": m["physics"]["n_steps"], "physics_step_s": m["timings_s"].get("physics_step_s")})
         r = rows[-1]
         print(f"{sid}: {total:6.2f} s (seabed {r['seabed_s']:.2f}, layout {r['layout_s']:.2f}, physics "
               f"{r['physics_s']:.2f}, scan {r['scan_s']:.2f}); {r['points']} points, {r['points_per_m2']:.0f}/m^2, "
@@ -74,7 +74,7 @@ def main():
         "cull_scene": sid,
         "scan_culled_s": culled["timings_s"]["scan_s"], "scan_naive_s": naive["timings_s"]["scan_s"],
         "triangles_culled": culled["stats"]["triangles_cast"], "triangles_naive": naive["stats"]["triangles_cast"],
-        "physics_sleep_step_s": culled["physics"]["step_wall_s"], "physics_nosleep_step_s": nosleep["physics"]["step_wall_s"],
+        "physics_sleep_step_s": culled["timings_s"]["physics_step_s"], "physics_nosleep_step_s": nosleep["timings_s"]["physics_step_s"],
         "same_points_with_and_without_culling": culled["stats"]["n_points"] == naive["stats"]["n_points"],
     }
     print(f"\n{summary['scenes']} scenes, {summary['cores']} cores: {summary['mean_s_per_scene']:.2f} s/scene, "

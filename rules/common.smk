@@ -9,7 +9,7 @@ from snakemake.exceptions import WorkflowError
 sys.path.insert(0, os.path.join(workflow.basedir, "src"))
 
 from sonardet.config import ConfigError, validate_config
-from sonardet.sim.dataset import scene_ids, split_names
+from sonardet.sim.dataset import make_splits, scene_ids, split_names
 
 try:
     _validated = validate_config(config, source="workflow config")
@@ -21,6 +21,17 @@ config.update(_validated)
 CLASSES = config["classes"]
 SCENES = scene_ids(config["scenes"]["n_scenes"])
 SPLITS = split_names(config["split"]["fractions"])
+# The split is a pure function of the config, so the DAG knows the test scenes without a checkpoint;
+# the split rule writes the same lists to results/splits/ for users and other tools.
+SPLIT = make_splits(
+    SCENES,
+    config["split"]["n_test"],
+    config["split"]["n_val"],
+    config["split"]["fractions"],
+    config["seed"],
+)
+#: Evaluation datasets: name -> scene ids.
+DATASETS = {"synthetic": SPLIT["test"]}
 
 
 wildcard_constraints:
@@ -41,6 +52,21 @@ def template_files():
 def scene_files(ext):
     """results/scenes/{scene}.{ext} for every scene of the dataset."""
     return expand("results/scenes/{scene}.{ext}", scene=SCENES, ext=ext)
+
+
+def dataset_scene_files(dataset, ext):
+    """Scene files of an evaluation dataset."""
+    return expand("results/scenes/{scene}.{ext}", scene=DATASETS[dataset], ext=ext)
+
+
+def detection_files(method, dataset):
+    """Detection files of a method on every scene of a dataset."""
+    return expand(
+        "results/detections/{method}/{dataset}/{scene}.json",
+        method=method,
+        dataset=dataset,
+        scene=DATASETS[dataset],
+    )
 
 
 def final_outputs():

@@ -125,6 +125,10 @@ def _cross_checks(cfg: dict) -> list[str]:
             out.append(f"scenes.n_objects: up to {sc['n_objects'][1]} objects need about "
                        f"{sc['n_objects'][1] * area:.0f} m^2 of seabed, more than 60 % of the "
                        f"{ex} x {ey} m scene (scenes.extent_m); lower n_objects or enlarge the scene")
+    ev = cfg["evaluation"]
+    if ev["headline_m"] not in ev["dist_thresholds_m"]:
+        out.append(f"evaluation.headline_m: {ev['headline_m']} is not one of evaluation.dist_thresholds_m "
+                   f"{ev['dist_thresholds_m']}")
     if cfg["split"]["n_test"] >= sc["n_scenes"]:
         out.append(f"split.n_test: {cfg['split']['n_test']} test scenes leave none of the "
                    f"{sc['n_scenes']} scenes (scenes.n_scenes) for training")

@@ -23,22 +23,45 @@ The MuJoCo model (built with ``mujoco.MjSpec``):
   mesh geom's vertices for collisions); the geoms' density is mass / (sum of hull volumes), so the
   body has the requested mass and the inertia of its parts. Static bodies (``static=True``, e.g. rocks
   embedded in the seabed) are fixed to the world at their given pose and not simulated.
-- Contact: friction coefficient 0.7 (concrete on sand or gravel is about 0.6-0.8), condim 3, pyramidal
-  cones, MuJoCo's default soft-contact parameters (solref 0.02 s, which needs dt <= 10 ms).
-  multiccd (several contacts per convex-convex pair, default on since MuJoCo 3.3) keeps faces resting
-  on faces stable.
-- Integration: ``implicitfast`` with the Newton solver and dt 4 ms (5 ms still stable for the
-  tetrapod/box scenes tested; smaller steps only cost time); noslip off (no drift at rest was seen
-  without it, and it costs an extra solver pass per step).
+- Contact: sliding friction 0.7 (concrete on sand or gravel is about 0.6-0.8). Contacts with the
+  seabed also carry torsional and rolling resistance (condim 6) of ``rolling_resistance`` (0.1, a
+  rolling-resistance coefficient of a hard body on sand) times the body's bounding radius, capped at
+  ``rolling_max_m`` (2 cm): a small rounded rock then stops on a gentle slope or in a dip instead of
+  rolling or rocking to and fro for the whole time limit (seen with 0.02 x radius: a 0.23 m rock
+  still rocking at 0.6 rad/s after 10 s), as sediment stops it. Rolling resistance can also hold a
+  body balanced on an edge whose centre of mass is within that distance of the edge; uncapped (8 cm
+  for a tetrapod) it held 4 of 20 dropped tetrapods on two legs, with the 2 cm cap none (one of
+  the 20 stood on a single leg's flat end, a real if fragile equilibrium). Elliptic
+  friction cones with impratio 10 (MuJoCo's advice against slip; pyramidal cones and impratio 1
+  showed bodies creeping and vibrating in place for seconds), MuJoCo's default soft contacts (solref
+  0.02 s, which needs dt <= 10 ms; resting overlap is about 1 mm or less). multiccd (several
+  contacts per convex-convex pair; default since MuJoCo 3.8, switched on here for older versions)
+  keeps faces resting on faces stable.
+- Water: a rotational dashpot per body (``angular_damping_time_s`` = 1 s: free spin decays as
+  exp(-t / 1 s)) stands in for drag; it adds no static torque, so it cannot hold a body in a false
+  equilibrium. Measured on the benchmark scenes (seeds 1-6): 5-54 % fewer steps for the tetrapod
+  scenes, 1-15 % more for the catalog scenes (reef elements lowered upright); every scene settled
+  either way.
+- Integration: ``implicitfast``, Newton solver, dt 4 ms, noslip off (an extra solver pass per step;
+  with pyramidal cones it made whole scenes of tetrapods creep, with elliptic cones it is not needed).
+
+Cost: collision detection against the hfield dominates (MuJoCo tests every prism under a geom's
+bounding box). ``hfield_cell_m`` can give MuJoCo a coarser copy of the seabed (0.2 m: about 2x
+faster collision, objects then rest up to ~1 cm off the fine surface the sonar sees); the default is
+the seabed's own grid.
 
 "Simulate only bodies not yet at rest": with ``sleep=True`` (default) MuJoCo's island sleeping
-(``mjENBL_SLEEP``, MuJoCo >= 3.3) takes islands of bodies whose velocities stayed below
-``sleep_tolerance`` for 10 steps out of the pipeline: no contacts, no dynamics, until something
-awake touches them. ``benchmarks/physics.py`` measures the saving against ``sleep=False``.
+(``mjENBL_SLEEP``, MuJoCo >= 3.4; developed and tested with 4.0) takes islands of bodies whose
+velocities stayed below ``sleep_tolerance`` for 10 steps out of the pipeline (no collision
+detection, no dynamics) until something awake touches them. ``benchmarks/physics.py`` measures the
+saving against ``sleep=False``: 2.4-7.5x less wall time on five 40 x 40 m scenes of 75-80 bodies.
 
-A body is *at rest* when its linear speed < lin_vel_tol and angular speed < ang_vel_tol (or MuJoCo
-has put it to sleep) continuously for settle_window_s; the simulation stops when every remaining
-dynamic body is at rest, or at max_time_s.
+A body is *at rest* when, over the last settle_window_s, its origin moved less than
+``lin_vel_tol * settle_window_s`` and it turned less than ``ang_vel_tol * settle_window_s`` (mean
+velocities below the tolerances) and its current speeds are below ``SPEED_FACTOR`` (5) times the
+tolerances; net motion rather than instantaneous speed, because soft contacts let a resting body
+vibrate in place at ~0.01 rad/s. The simulation stops when every remaining dynamic body is at rest,
+or at max_time_s.
 """
 
 from __future__ import annotations
@@ -120,7 +143,9 @@ class SettleResult:
     compile time. all_at_rest: every dynamic body still in play at the end met the rest criterion
     (False when some were removed as not_settled). initial_penetration_m: deepest overlap (m) between
     geoms at the start (bodies spawned inside each other or the seabed get pushed apart violently;
-    spawn them clear, e.g. with :func:`place_above`).
+    spawn them clear, e.g. with :func:`place_above`). final_penetration_m: deepest overlap (m) between
+    kept bodies, or a body and the seabed, at the end (soft contacts rest a few mm deep).
+    touching: sorted (name, name) pairs of kept bodies in contact with each other at the end (piles).
     """
 
     names: list
@@ -134,6 +159,8 @@ class SettleResult:
     build_time_s: float
     all_at_rest: bool
     initial_penetration_m: float = 0.0
+    final_penetration_m: float = 0.0
+    touching: list = field(default_factory=list)
 
     def pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """(pos (3,), quat (4,)) of a kept body; KeyError (naming the removal reason) otherwise."""
@@ -170,15 +197,25 @@ def _physics_heightfield(hf: Heightfield, bounds_xy, margin_m: float, cell_m: fl
 
 def build_model(bodies: list[RigidBody], hf: Heightfield, *, dt_s: float = 0.004, friction: float = 0.7,
                 sleep: bool = True, sleep_tolerance: float = 1e-3, base_m: float = 1.0,
-                solver: str = "newton", seabed_condim: int = 6, rolling_resistance: float = 0.02,
+                solver: str = "newton", seabed_condim: int = 6, rolling_resistance: float = 0.1,
+                rolling_max_m: float = 0.02,
                 cone: str = "elliptic", noslip_iterations: int = 0,
-                solref_timeconst_s: float = 0.02, impratio: float = 10.0) -> tuple[mujoco.MjModel, dict]:
+                solref_timeconst_s: float = 0.02, impratio: float = 10.0,
+                angular_damping_time_s: float | None = 1.0) -> tuple[mujoco.MjModel, dict]:
     """Compile the MuJoCo model of the seabed hf and the bodies (see the module docstring).
 
     Returns (model, info) where info maps 'body_ids' (MuJoCo body id per dynamic input body, -1 for
     static ones), 'geom_ids' (list of geom id arrays per input body), 'qpos_adr' and 'qvel_adr'
     (address of each dynamic body's free joint in qpos/qvel, -1 for static), 'hfield_geom'.
-    base_m: thickness (m) of the solid base MuJoCo puts under the lowest seabed point.
+    dt_s: time step (s). friction: sliding friction coefficient. sleep, sleep_tolerance (m/s): MuJoCo
+    island sleeping. base_m: thickness (m) of the solid base MuJoCo puts under the lowest seabed
+    point. solver: 'newton', 'cg' or 'pgs'. seabed_condim: contact dimensionality with the seabed (3:
+    sliding only, 4: + torsion, 6: + rolling). rolling_resistance (dimensionless) and rolling_max_m
+    (m): torsional/rolling friction length = min(rolling_resistance * bounding radius,
+    rolling_max_m). cone: 'elliptic' or 'pyramidal'. noslip_iterations: MuJoCo noslip passes.
+    solref_timeconst_s: contact stiffness time constant (s, >= 2 dt). impratio: friction-to-normal
+    impedance ratio (elliptic cones). angular_damping_time_s: rotational damping time constant (s) of
+    every free body, None for none.
     """
     spec = mujoco.MjSpec()
     spec.modelname = "sonardet_settle"
@@ -192,8 +229,13 @@ def build_model(bodies: list[RigidBody], hf: Heightfield, *, dt_s: float = 0.004
     opt.noslip_iterations = int(noslip_iterations)
     opt.impratio = float(impratio)
 
-    opt.sleep_tolerance = float(sleep_tolerance)
+    if hasattr(mujoco.mjtEnableBit, "mjENBL_MULTICCD"):  # MuJoCo < 3.8: multiccd was opt-in
+        opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_MULTICCD)
     if sleep:
+        if not hasattr(mujoco.mjtEnableBit, "mjENBL_SLEEP"):
+            raise RuntimeError(f"sleep=True needs MuJoCo >= 3.4 (island sleeping); this is MuJoCo "
+                               f"{mujoco.__version__}: upgrade it or pass sleep=False")
+        opt.sleep_tolerance = float(sleep_tolerance)
         opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 
     # seabed
@@ -231,7 +273,7 @@ def build_model(bodies: list[RigidBody], hf: Heightfield, *, dt_s: float = 0.004
         # coefficient rolling_resistance times its bounding radius (MuJoCo takes the larger of the two
         # geoms' values, and the seabed's are 0)
         radius = float(np.max(np.linalg.norm(np.vstack(b.convex_parts) - np.vstack(b.convex_parts).mean(0), axis=1)))
-        roll = rolling_resistance * radius
+        roll = min(rolling_resistance * radius, rolling_max_m)
         body = spec.worldbody.add_body(name=f"b{bi}", pos=b.pos.tolist(), quat=b.quat.tolist())
         if not b.static:
             body.add_freejoint()
@@ -260,6 +302,12 @@ def build_model(bodies: list[RigidBody], hf: Heightfield, *, dt_s: float = 0.004
             info["body_ids"].append(bid)
             info["qpos_adr"].append(int(model.jnt_qposadr[jid]))
             info["qvel_adr"].append(int(model.jnt_dofadr[jid]))
+            if angular_damping_time_s:
+                # rotational dashpot (water drag, sediment): free angular velocity decays as
+                # exp(-t / angular_damping_time_s); damping creates no static torque, so unlike rolling
+                # friction it cannot hold a body in a false equilibrium
+                a = int(model.jnt_dofadr[jid])
+                model.dof_damping[a + 3:a + 6] = float(np.mean(model.body_inertia[bid])) / angular_damping_time_s
     return model, info
 
 
@@ -278,16 +326,20 @@ def settle(bodies: list[RigidBody], heightfield: Heightfield, *, rng: np.random.
     inputs -> identical result. dt_s: time step (s). max_time_s: simulated-time limit (s).
     lin_vel_tol (m/s), ang_vel_tol (rad/s), settle_window_s (s): the rest criterion (module docstring).
     bounds_xy: (xmin, xmax, ymin, ymax) (m) a body's centre of mass must stay in; default: the
-    heightfield's extent. friction: sliding friction coefficient for bodies without their own.
+    heightfield's extent. friction: sliding friction coefficient (bodies and seabed).
     sleep: use MuJoCo's island sleeping for bodies at rest (False = simulate everything every step;
     same rest criterion). sleep_tolerance: MuJoCo's sleep velocity threshold (m/s).
-    below_terrain_m: a body whose centre of mass is more than this below the seabed under it has
-    fallen through and is removed. hfield_cell_m: resample the seabed for the physics (None: as
-    given). hfield_margin_m: seabed kept around bounds_xy (m).
+    below_terrain_m: a body whose centre of mass is more than this (m) below the seabed under it has
+    fallen through and is removed. hfield_cell_m: give MuJoCo the seabed resampled to this cell size
+    (None: the seabed's own grid). hfield_margin_m: seabed kept around bounds_xy (m). solver: 'newton',
+    'cg' or 'pgs'. model_options: passed to :func:`build_model` (e.g. cone, impratio,
+    rolling_resistance, seabed_condim, noslip_iterations, solref_timeconst_s, base_m).
 
-    Removed bodies (reasons REASON_*): spawned outside bounds_xy or with the centre of mass below the
-    seabed (bad_start, never simulated), centre of mass left bounds_xy (out_of_bounds), sank
-    (below_terrain), still moving at max_time_s (not_settled). A removed body stops colliding at once.
+    Static bodies are kept at their pose, never simulated and never removed. Dynamic bodies are
+    removed (reasons REASON_*) when spawned with their centre of mass outside bounds_xy or more than
+    below_terrain_m below the seabed (bad_start, never simulated), when their centre of mass leaves
+    bounds_xy (out_of_bounds) or sinks below the seabed (below_terrain), both checked every ~50 ms,
+    or when still moving at max_time_s (not_settled). A removed body stops colliding at once.
     """
     names = [b.name for b in bodies]
     if len(set(names)) != len(names):
@@ -301,19 +353,18 @@ def settle(bodies: list[RigidBody], heightfield: Heightfield, *, rng: np.random.
     if not (xmax > xmin and ymax > ymin):
         raise ValueError(f"bounds_xy must be (xmin, xmax, ymin, ymax) with max > min, got {bounds_xy}")
 
-    # ---- reject bad starts (before building, so they cannot disturb others)
+    # ---- reject bad starts (before building, so they cannot disturb others); static bodies are
+    # never simulated and always kept
     removed: list[RemovedBody] = []
     keep = []
     for b in bodies:
-        com0 = b.pos  # approximate: the check uses the canonical origin at spawn
-        inside = xmin <= com0[0] <= xmax and ymin <= com0[1] <= ymax and bool(heightfield.contains(com0[0], com0[1]))
-        if not inside:
-            removed.append(RemovedBody(b.name, REASON_BAD_START, 0.0, b.pos.copy()))
+        if b.static:
+            keep.append(b)
             continue
-        h = float(heightfield.height_at(com0[0], com0[1]))
-        top = max(float((p @ _rot(b.quat).T)[:, 2].max()) for p in b.convex_parts) + b.pos[2]
-        if top < h - below_terrain_m:
-            removed.append(RemovedBody(b.name, REASON_BAD_START, 0.0, b.pos.copy()))
+        c = b.pos + _rot(b.quat) @ np.vstack(b.convex_parts).mean(0)  # approximate centre of mass
+        h = float(heightfield.height_at(c[0], c[1])) if heightfield.contains(c[0], c[1]) else np.nan
+        if not (xmin <= c[0] <= xmax and ymin <= c[1] <= ymax) or np.isnan(h) or c[2] < h - below_terrain_m:
+            removed.append(RemovedBody(b.name, REASON_BAD_START, 0.0, c))
             continue
         keep.append(b)
 
@@ -401,6 +452,21 @@ def settle(bodies: list[RigidBody], heightfield: Heightfield, *, rng: np.random.
     all_at_rest = bool(np.all(rest[active]))
     for k in np.flatnonzero(active & ~rest):
         remove(int(k), REASON_NOT_SETTLED)
+    # deepest remaining overlap among kept bodies and the seabed: sleeping islands skip their own
+    # contacts, so wake everything (clearing the sleep flag) and recompute the contacts once
+    if sleep:
+        model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+    mujoco.mj_forward(model, data)
+    final_pen = float(max(0.0, -data.contact.dist[:data.ncon].min())) if data.ncon else 0.0
+    geom_owner = np.full(model.ngeom, -1, np.int64)
+    for kk, g in enumerate(info["geom_ids"]):
+        geom_owner[g] = kk
+    pairs = set()
+    for c in range(data.ncon):
+        a_, b_ = geom_owner[data.contact.geom1[c]], geom_owner[data.contact.geom2[c]]
+        if a_ >= 0 and b_ >= 0 and a_ != b_:
+            pairs.add((min(a_, b_), max(a_, b_)))
+    touching = sorted((keep[a_].name, keep[b_].name) for a_, b_ in pairs)
 
     # ---- assemble, input order
     dyn_pos = {int(d): j for j, d in enumerate(dyn)}
@@ -435,6 +501,8 @@ def settle(bodies: list[RigidBody], heightfield: Heightfield, *, rng: np.random.
         build_time_s=build_time,
         all_at_rest=all_at_rest,
         initial_penetration_m=init_pen,
+        final_penetration_m=final_pen,
+        touching=touching,
     )
 
 

@@ -31,7 +31,7 @@ def make_rock(size_m: float, rng: np.random.Generator, n_points: int = 48, jitte
     ROCK_SIZE_RANGE_M (0.2-1.5 m).
     """
     lo, hi = ROCK_SIZE_RANGE_M
-    if not lo <= size_m <= hi:
+    if not lo * (1 - 1e-9) <= size_m <= hi * (1 + 1e-9):
         raise ValueError(f"rock size_m must be in [{lo}, {hi}] m, got {size_m}")
     if n_points < 8:
         raise ValueError(f"n_points must be >= 8, got {n_points}")

@@ -18,7 +18,7 @@ pure Python with per-point loops that are fast only with numba (not a dependency
 integer seed rather than a Generator; ``vnoise`` (vectorised Perlin, 2021) is unmaintained;
 ``pyfastnoiselite`` (a young Cython wrapper) has a cp311 wheel but adds a compiled dependency and its
 own seeding for what is ~30 lines of vectorised numpy. The noise here is evaluated on a whole grid
-at once (about 10 ms for a 44 x 44 m field at 0.1 m).
+at once (a default 44 x 44 m seabed at 0.1 m, 7 octaves in all: about 0.05-0.15 s on one core).
 
 The :class:`Heightfield` is the seabed's single representation: bilinear heights and normals for
 placement, a triangle mesh for ray casting (triangulated exactly as MuJoCo triangulates an ``hfield``
@@ -37,12 +37,13 @@ import trimesh
 PERLIN_STD_2D = 0.2156
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Heightfield:
     """A seabed elevation grid in the scene frame.
 
     Node (j, i) lies at ``(x0 + i * cell_m, y0 + j * cell_m)`` with elevation ``z[j, i]`` (m, z up);
     `z` has shape (ny, nx), rows along y (south to north), columns along x (west to east), float64.
+    Immutable by convention (compare grids with ``np.array_equal(a.z, b.z)``).
     """
 
     x0: float

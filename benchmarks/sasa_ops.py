@@ -1,0 +1,203 @@
+"""Timings of the pure-PyTorch SASA point operators (sonardet.detect.sasa.ops).
+
+Runs on CPU with 2 threads (the default experiment's budget) and, when CUDA is available, on the
+GPU too. Prints a table; ``--json PATH`` also writes the rows for the report.
+
+Workload: a synthetic seabed-like cloud (x, y uniform over 40 m x 40 m, z a gentle surface with
+a few 1-2 m mounds), the SASA sampling chain 16384 -> 4096 -> 1024 -> 512 points, the ball
+queries of an SA1 layer with sonar radii (0.4 / 0.8 / 1.2 m, nsample 16 / 16 / 32), grouping of
+64-channel features, and rotated NMS / IoU on 500 boxes clustered around 25 objects.
+
+Peak memory of the ball query is measured in a fresh subprocess (ru_maxrss growth) so earlier
+allocations do not hide it.
+
+Usage: ``python benchmarks/sasa_ops.py [--quick] [--threads 2] [--json out.json]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing as mp
+import resource
+import time
+
+import torch
+
+from sonardet.detect.sasa.ops import (
+    ball_query,
+    ball_query_shells,
+    furthest_point_sample,
+    grouping_operation,
+    index_points,
+    iou_bev_rotated,
+    nms_bev_rotated,
+    semantic_furthest_point_sample,
+)
+
+RADII = [0.4, 0.8, 1.2]
+NSAMPLES = [16, 16, 32]
+
+
+def seabed_cloud(batch: int, n: int, seed: int = 0) -> torch.Tensor:
+    """(B, N, 3) float32 synthetic seabed points in a 40 m x 40 m window (metres)."""
+    g = torch.Generator().manual_seed(seed)
+    xy = (torch.rand(batch, n, 2, generator=g) - 0.5) * 40.0
+    z = 0.3 * torch.sin(xy[..., 0] / 7.0) * torch.cos(xy[..., 1] / 5.0) + 0.02 * torch.randn(batch, n, generator=g)
+    centres = (torch.rand(batch, 10, 2, generator=g) - 0.5) * 36.0
+    d2 = ((xy[:, :, None, :] - centres[:, None, :, :]) ** 2).sum(-1)
+    z = z + (1.5 * torch.exp(-d2 / 0.5)).sum(-1)
+    return torch.cat([xy, z[..., None]], dim=-1).contiguous()
+
+
+def clustered_boxes(k: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    """k boxes [x,y,z,l,w,h,yaw] jittered around 25 objects, and scores."""
+    g = torch.Generator().manual_seed(seed)
+    obj = torch.cat([(torch.rand(25, 2, generator=g) - 0.5) * 36, torch.zeros(25, 1),
+                     0.75 + 1.4 * torch.rand(25, 3, generator=g), (torch.rand(25, 1, generator=g) - 0.5) * 2 * math.pi], 1)
+    which = torch.randint(0, 25, (k,), generator=g)
+    boxes = obj[which].clone()
+    boxes[:, :3] += 0.3 * torch.randn(k, 3, generator=g)
+    boxes[:, 3:6] *= 1 + 0.1 * torch.randn(k, 3, generator=g)
+    boxes[:, 6] += 0.3 * torch.randn(k, generator=g)
+    return boxes, torch.rand(k, generator=g)
+
+
+def timeit(fn, device: torch.device, repeat: int) -> float:
+    """Best-of-``repeat`` wall time in seconds (after one warm-up call)."""
+    fn()
+    best = float("inf")
+    for _ in range(repeat):
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        t0 = time.perf_counter()
+        fn()
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _peak_mb() -> float:
+    """Peak resident set size of this process in MB (VmHWM, else ru_maxrss)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _reset_peak() -> None:
+    try:  # Linux >= 4.0: reset the peak-RSS counter to the current RSS
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        pass
+
+
+def _mem_probe(args):
+    """Child process: peak RSS growth (MB) of one ball-query call on CPU."""
+    batch, n, m, shells, method, threads = args
+    torch.set_num_threads(threads)
+    xyz = seabed_cloud(batch, n)
+    q = xyz[:, :m].contiguous()
+    _reset_peak()
+    base = _peak_mb()
+    if shells:
+        ball_query_shells(RADII, NSAMPLES, xyz, q, dilated=True, method=method)
+    else:
+        ball_query(RADII[-1], NSAMPLES[-1], xyz, q, method=method)
+    return _peak_mb() - base
+
+
+def run(device: torch.device, batches: list[int], repeat: int, rows: list[dict]) -> None:
+    def add(op, shape, seconds, note=""):
+        rows.append({"device": str(device), "op": op, "shape": shape, "ms": 1000 * seconds, "note": note})
+        print(f"{str(device):6s} {op:34s} {shape:34s} {1000 * seconds:10.1f} ms  {note}", flush=True)
+
+    for batch in batches:
+        xyz0 = seabed_cloud(batch, 16384).to(device)
+        chain = [(16384, 4096), (4096, 1024), (1024, 512)]
+        xyz = xyz0
+        for n, m in chain:
+            xyz = xyz[:, :n].contiguous()
+            logits = torch.randn(batch, n, device=device)
+            add("D-FPS", f"B={batch} {n}->{m}", timeit(lambda: furthest_point_sample(xyz, m), device, repeat))
+            add("S-FPS (gamma=1)", f"B={batch} {n}->{m}",
+                timeit(lambda: semantic_furthest_point_sample(xyz, logits, m, 1.0), device, repeat))
+        xyz = xyz0
+        q = index_points(xyz, furthest_point_sample(xyz, 4096))
+        # dense on CPU only at batch 2 (it is ~15x slower than tiled there; it is the CUDA default)
+        methods = (["tiled", "dense"] if batch <= 2 else ["tiled"]) if device.type == "cpu" else ["dense", "tiled"]
+        for method in methods:
+            add(f"ball_query r=1.2 K=32 [{method}]", f"B={batch} N=16384 M=4096",
+                timeit(lambda: ball_query(1.2, 32, xyz, q, method=method), device, repeat))
+            add(f"ball_query_shells x3 dil. [{method}]", f"B={batch} N=16384 M=4096",
+                timeit(lambda: ball_query_shells(RADII, NSAMPLES, xyz, q, dilated=True, method=method), device, repeat),
+                "r=0.4/0.8/1.2 K=16/16/32")
+        idx = ball_query(1.2, 32, xyz, q)
+        feats = torch.randn(batch, 64, 16384, device=device, requires_grad=True)
+
+        def group_fwd_bwd():
+            out = grouping_operation(feats, idx)
+            out.sum().backward()
+            feats.grad = None
+
+        add("grouping fwd", f"B={batch} C=64 N=16384 M=4096 K=32",
+            timeit(lambda: grouping_operation(feats.detach(), idx), device, repeat))
+        add("grouping fwd+bwd", f"B={batch} C=64 N=16384 M=4096 K=32", timeit(group_fwd_bwd, device, repeat))
+
+    boxes, scores = clustered_boxes(500)
+    boxes, scores = boxes.to(device), scores.to(device)
+    n_keep = len(nms_bev_rotated(boxes, scores, 0.1))
+    add("nms_bev_rotated thr=0.1", "K=500 (25 clusters)",
+        timeit(lambda: nms_bev_rotated(boxes, scores, 0.1), device, repeat), f"{n_keep} kept")
+    add("nms_bev_rotated thr=0.01", "K=500 (25 clusters)",
+        timeit(lambda: nms_bev_rotated(boxes, scores, 0.01), device, repeat))
+    add("iou_bev_rotated", "500 x 500", timeit(lambda: iou_bev_rotated(boxes, boxes), device, repeat))
+    big, big_s = clustered_boxes(4096, seed=1)
+    big, big_s = big.to(device), big_s.to(device)
+    add("nms_bev_rotated thr=0.1", "K=4096 (25 clusters)",
+        timeit(lambda: nms_bev_rotated(big, big_s, 0.1), device, max(1, repeat // 2)))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--quick", action="store_true", help="batch 2 only, 1 repeat, no memory probe")
+    ap.add_argument("--no-cuda", action="store_true")
+    ap.add_argument("--json", default=None, help="write the rows to this JSON file")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    batches = [2] if args.quick else [2, 8]
+    repeat = 1 if args.quick else args.repeat
+    rows: list[dict] = []
+    print(f"torch {torch.__version__}, CPU threads {torch.get_num_threads()}")
+    print(f"{'device':6s} {'op':34s} {'shape':34s} {'time':>13s}")
+    run(torch.device("cpu"), batches, repeat, rows)
+    if torch.cuda.is_available() and not args.no_cuda:
+        print(f"CUDA: {torch.cuda.get_device_name()}")
+        run(torch.device("cuda"), [2, 8], args.repeat, rows)
+    if not args.quick:
+        ctx = mp.get_context("spawn")
+        for batch in batches:
+            for shells in (False, True):
+                for method in ("tiled", "dense"):
+                    with ctx.Pool(1) as pool:
+                        mb = pool.map(_mem_probe, [(batch, 16384, 4096, shells, method, args.threads)])[0]
+                    op = "ball_query_shells x3" if shells else "ball_query r=1.2 K=32"
+                    rows.append({"device": "cpu", "op": f"peak RSS growth {op} [{method}]",
+                                 "shape": f"B={batch} N=16384 M=4096", "MB": mb})
+                    print(f"cpu    peak RSS growth {op} [{method}] B={batch} N=16384 M=4096: {mb:.0f} MB", flush=True)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump({"torch": torch.__version__, "threads": args.threads, "rows": rows}, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,28 @@
+"""Evaluate one method's detections on one dataset (nuScenes centre-distance AP)."""
+
+import os
+import sys
+
+sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+
+import json
+
+import numpy as np
+
+from sonardet.eval import evaluate_files
+from sonardet.workflow import rule_logging
+
+with rule_logging(snakemake, "evaluate") as log:  # noqa: F821
+    smk = snakemake  # noqa: F821
+    ev = smk.params.evaluation
+    metas = [json.load(open(p)) for p in smk.input.objects]
+    symmetric = [m["cls"] for m in metas if m["rotationally_symmetric"]]
+    periods = {m["cls"]: 2 * np.pi / m["symmetry_order"] for m in metas if m["symmetry_order"] > 1}
+    res = evaluate_files(
+        smk.input.scenes, smk.input.detections, smk.output.metrics, smk.output.per_class, smk.output.pr,
+        smk.params.classes, ev["dist_thresholds_m"], ev["headline_m"], symmetric_classes=symmetric,
+        min_recall=ev["min_recall"], min_precision=ev["min_precision"], dataset=smk.wildcards.dataset,
+        yaw_periods_rad=periods,
+    )
+    log.info("%s on %s: mAP@%.1f m = %.4f", smk.wildcards.method, smk.wildcards.dataset, ev["headline_m"],
+             res["mAP_headline"])
