@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,24 +19,11 @@ from sonardet.io.origin import (
     to_global,
     to_local,
 )
+from conftest import REAL_FILE, needs_real
 from sonardet.io.pointcloud import PointCloud, read_points
 
 
-def _real_file() -> Path | None:
-    """The R2Sonic survey line of ../shared/data/real (or $SONARDET_REAL_DATA), if present."""
-    candidates = [
-        os.environ.get("SONARDET_REAL_DATA", ""),
-        str(Path(__file__).resolve().parents[1] / "shared" / "data" / "real"),
-        str(Path(__file__).resolve().parents[2] / "shared" / "data" / "real"),
-    ]
-    for folder in candidates:
-        if folder and (Path(folder) / "r2sonic_sfbay.xyz.gz").is_file():
-            return Path(folder) / "r2sonic_sfbay.xyz.gz"
-    return None
-
-
-REAL = _real_file()
-needs_real = pytest.mark.skipif(REAL is None, reason="real survey file r2sonic_sfbay.xyz.gz not available")
+REAL = REAL_FILE
 
 
 @pytest.fixture(scope="module")

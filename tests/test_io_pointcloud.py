@@ -17,6 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sonardet.io.origin import GlobalCoordinatesError
+from conftest import REAL_DIR, needs_real
 from sonardet.io.pointcloud import (
     SUPPORTED_SUFFIXES,
     PointCloud,
@@ -28,20 +29,6 @@ from sonardet.io.pointcloud import (
 )
 
 
-def _real_dir() -> Path | None:
-    candidates = [
-        os.environ.get("SONARDET_REAL_DATA", ""),
-        str(Path(__file__).resolve().parents[1] / "shared" / "data" / "real"),
-        str(Path(__file__).resolve().parents[2] / "shared" / "data" / "real"),
-    ]
-    for folder in candidates:
-        if folder and (Path(folder) / "r2sonic_sfbay.xyz.gz").is_file():
-            return Path(folder)
-    return None
-
-
-REAL_DIR = _real_dir()
-needs_real = pytest.mark.skipif(REAL_DIR is None, reason="real survey data not available")
 
 ALL_FORMATS = [".xyz", ".xyz.gz", ".txt", ".pts", ".csv", ".csv.gz", ".las", ".laz", ".ply", ".npz"]
 EXACT = {".xyz", ".xyz.gz", ".txt", ".pts", ".csv", ".csv.gz", ".ply", ".npz"}
