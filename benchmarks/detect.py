@@ -1,0 +1,131 @@
+"""Model-based detector: speed, work done and accuracy of the `paper` and `ours` variants.
+
+For N scenes of a split (default: the first 5 of results/splits/test.txt) and each variant: seconds per
+scene (per stage), windows / proposals, skipped ones, ICP runs, and the nuScenes centre-distance AP per
+class at 0.5 m (sonardet.eval.evaluate.evaluate, visible ground truth only) with the mean over classes.
+On the first scene it also reruns the paper variant with empty-window skipping disabled
+(`skip_empty_windows: False`) and reports the time the skipping saves.
+
+    python benchmarks/detect.py [--scenes 5] [--split test] [--variants paper,ours] [--results results]
+                                [--params-ours '{"icp_xy_starts_m": 0}'] [--json out.json] [--no-skip-compare]
+
+Run it on 2 cores for the figures quoted in the README (e.g. `taskset -c 0,1 python benchmarks/detect.py`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sonardet.detect.model_based import detect
+from sonardet.objects import load_object
+from sonardet.sim.scene import load_scene_points
+from sonardet.sim.templates import load_templates
+
+
+def load_inputs(results: Path):
+    """Templates and objects of every class found under results/objects and results/templates."""
+    classes = sorted(p.stem for p in (results / "objects").glob("*.json"))
+    objects = {c: load_object(results / "objects" / f"{c}.json") for c in classes}
+    templates = {c: load_templates(results / "templates" / f"{c}.npz") for c in classes}
+    return classes, objects, templates
+
+
+def evaluate_map(gt: dict, dets: dict, objects: dict, classes: list) -> dict | None:
+    """AP@0.5 m per class and mAP (None if the evaluation module is unavailable)."""
+    try:
+        from sonardet.eval.evaluate import evaluate
+    except Exception as e:  # pragma: no cover - only when the evaluation module is broken
+        print(f"evaluation unavailable: {e}")
+        return None
+    sym = [c for c in classes if objects[c].symmetry_order == 0]
+    periods = {c: 2 * math.pi / objects[c].symmetry_order for c in classes if objects[c].symmetry_order > 1}
+    r = evaluate(gt, dets, classes, [0.5, 1.0, 2.0, 4.0], 0.5, symmetric_classes=sym, yaw_periods_rad=periods)
+    return {"mAP@0.5": r["mAP_headline"], "AP@0.5": {c: r["per_class"][c]["AP"]["0.5"] for c in classes},
+            "n_gt": {c: r["per_class"][c]["n_gt"] for c in classes},
+            "n_tp@0.5": {c: r["per_class"][c]["n_tp"]["0.5"] for c in classes},
+            "n_pred": {c: r["per_class"][c]["n_pred"] for c in classes}}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--results", default="results")
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--scenes", type=int, default=5, help="number of scenes of the split (0: all)")
+    ap.add_argument("--variants", default="paper,ours")
+    ap.add_argument("--params-ours", default="{}", help="JSON overrides of the ours defaults")
+    ap.add_argument("--params-paper", default="{}", help="JSON overrides of the paper defaults")
+    ap.add_argument("--no-skip-compare", action="store_true", help="skip the empty-window comparison")
+    ap.add_argument("--json", default=None, help="write all numbers to this JSON file")
+    args = ap.parse_args()
+    results = Path(args.results)
+    ids = (results / "splits" / f"{args.split}.txt").read_text().split()
+    if args.scenes > 0:
+        ids = ids[: args.scenes]
+    classes, objects, templates = load_inputs(results)
+    params = {"ours": json.loads(args.params_ours), "paper": json.loads(args.params_paper)}
+    print(f"{len(ids)} scene(s) of split '{args.split}', classes {classes}, "
+          f"{os.cpu_count()} CPU(s) visible, affinity {len(os.sched_getaffinity(0))} core(s)")
+    gt = {}
+    points = {}
+    for sid in ids:
+        meta = json.loads((results / "scenes" / f"{sid}.json").read_text())
+        gt[sid] = [{"cls": o["cls"], "box": o["box"], "visible": o.get("visible", True)} for o in meta["objects"]]
+        points[sid] = load_scene_points(results / "scenes" / f"{sid}.npz")["xyz"]
+    out = {"scenes": ids, "variants": {}}
+    for variant in args.variants.split(","):
+        rows, dets = [], {}
+        for sid in ids:
+            d, st = detect(points[sid], templates, objects, params[variant], variant)
+            dets[sid] = d
+            rows.append({"scene": sid, "n_points": st["n_points"], "seconds": st["seconds"], "windows": st["windows"],
+                         "windows_skipped": st["windows_skipped"], "icp_runs": st["icp_runs"],
+                         "hypotheses": st["hypotheses"], "n_detections": len(d)})
+            s = st["seconds"]
+            print(f"[{variant}] {sid}: {s['total']:6.2f} s (ground {s['ground']:.2f}, proposals {s['proposals']:.2f}, "
+                  f"registration {s['registration']:.2f}, scoring {s['scoring']:.2f}, selection {s['selection']:.2f}); "
+                  f"{st['windows']} windows/proposals, {st['windows_skipped']} skipped, {st['icp_runs']} ICP runs, "
+                  f"{len(d)} detections", flush=True)
+        secs = np.array([r["seconds"]["total"] for r in rows])
+        summary = {"seconds_per_scene_mean": float(secs.mean()), "seconds_per_scene_max": float(secs.max()),
+                   "windows_mean": float(np.mean([r["windows"] for r in rows])),
+                   "windows_skipped_mean": float(np.mean([r["windows_skipped"] for r in rows])),
+                   "icp_runs_mean": float(np.mean([r["icp_runs"] for r in rows]))}
+        ev = evaluate_map(gt, dets, objects, classes)
+        if ev:
+            summary.update(ev)
+            print(f"[{variant}] mAP@0.5 m = {ev['mAP@0.5']:.4f}; AP@0.5 m per class: "
+                  + ", ".join(f"{c} {ev['AP@0.5'][c]:.4f} ({ev['n_tp@0.5'][c]}/{ev['n_gt'][c]} TP, "
+                              f"{ev['n_pred'][c]} predictions)" for c in classes))
+        print(f"[{variant}] {summary['seconds_per_scene_mean']:.2f} s per scene "
+              f"(max {summary['seconds_per_scene_max']:.2f}); "
+              f"{summary['windows_mean']:.0f} windows, {summary['windows_skipped_mean']:.0f} skipped, "
+              f"{summary['icp_runs_mean']:.0f} ICP runs per scene")
+        out["variants"][variant] = {"summary": summary, "scenes": rows}
+    if not args.no_skip_compare and ids:
+        sid = ids[0]
+        t0 = time.perf_counter()
+        _, st_skip = detect(points[sid], templates, objects, params["paper"], "paper")
+        t_skip = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        _, st_all = detect(points[sid], templates, objects, dict(params["paper"], skip_empty_windows=False), "paper")
+        t_all = time.perf_counter() - t0
+        saved = t_all - t_skip
+        print(f"[skip] {sid}, paper: {st_all['windows']} windows; skipping {st_skip['windows_skipped']} with too few "
+              f"points above the seabed: {t_skip:.2f} s instead of {t_all:.2f} s ({st_skip['icp_runs']} instead of "
+              f"{st_all['icp_runs']} ICP runs), {saved:.2f} s saved ({100 * saved / max(t_all, 1e-9):.0f} %)")
+        out["skip_compare"] = {"scene": sid, "seconds_with_skip": t_skip, "seconds_without_skip": t_all,
+                               "windows": st_all["windows"], "windows_skipped": st_skip["windows_skipped"],
+                               "icp_runs_with_skip": st_skip["icp_runs"], "icp_runs_without_skip": st_all["icp_runs"]}
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,185 @@
+"""Speed and memory of the SASA detector (sonardet.detect.sasa): training step, inference, PAPER epoch cost.
+
+For each configuration (``DEFAULTS`` = the 2-core CPU budget, ``PAPER`` = the study's network with
+batch 8 and 16384 points) a fresh subprocess (so that peak memory is its own):
+
+1. prepares the scenes (ground filter, local frame) and reports the seconds per scene;
+2. times ``--steps`` training steps (forward, loss, backward, AdamW step; augmentation included)
+   at the configuration's batch size after ``--warmup`` untimed steps -> seconds per step;
+3. times inference (sampling, network, NMS) on each scene -> seconds per scene (random weights:
+   every candidate passes the score threshold, so NMS sees its worst case);
+4. reports peak resident memory (``ru_maxrss``, MB) and, on CUDA, peak allocated GPU memory;
+5. extrapolates the cost of one epoch over ``--train-scenes`` (default 80) scenes and of the whole
+   schedule (``epochs`` of the configuration).
+
+Scenes: ``results/scenes/*.npz`` listed in ``results/splits/train.txt`` (the first ``--n-scenes``);
+with ``--synthetic`` (or when none exist) synthetic scenes of the same size are made on the fly.
+
+Usage: ``python benchmarks/sasa.py [--threads 2] [--steps 5] [--configs DEFAULTS,PAPER] [--device cpu]
+[--json out.json]``. Timings are machine-dependent: compare rows taken on the same machine only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing as mp
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _synthetic_scenes(n: int, out: Path) -> list[Path]:
+    """n synthetic 40 m x 40 m scenes (~180 points/m^2 seabed, ~55 box-shaped elements)."""
+    sizes = {"reef_ring": (2.7, 2.7, 0.8), "reef_cone": (2.0, 2.0, 1.4), "tetrapod_b": (2.3, 2.5, 2.1),
+             "tetrapod_s": (1.6, 1.7, 1.5)}
+    paths = []
+    for s in range(n):
+        rng = np.random.default_rng(s)
+        ng = 288_000
+        g = np.c_[rng.uniform(0, 40, (ng, 2)), rng.normal(-11.5, 0.03, ng)]
+        pts, labels, objs = [g], [np.full(ng, -1)], []
+        for i in range(55):
+            cls = list(sizes)[i % 4]
+            l, w, h = sizes[cls]
+            cx, cy = 2 + 36 * rng.random(2)
+            area = l * w + 2 * (l + w) * h
+            k = int(180 * area)
+            loc = rng.uniform(-0.5, 0.5, (k, 3)) * [l, w, h]
+            face = rng.integers(0, 5, k)
+            loc[face == 0, 2] = h / 2
+            loc[face == 1, 0] = l / 2
+            loc[face == 2, 0] = -l / 2
+            loc[face == 3, 1] = w / 2
+            loc[face == 4, 1] = -w / 2
+            p = loc + [cx, cy, -11.5 + h / 2]
+            pts.append(p)
+            labels.append(np.full(k, i))
+            box = [float(cx), float(cy), -11.5 + h / 2, l, w, h, 0.0]
+            objs.append({"id": i, "cls": cls, "pose": {"t": box[:3], "q": [1, 0, 0, 0]}, "box": box,
+                         "n_points": k, "visible": True})
+        sid = f"syn{s:03d}"
+        np.savez(out / f"{sid}.npz", xyz=np.vstack(pts), label=np.concatenate(labels))
+        (out / f"{sid}.json").write_text(json.dumps({"schema_version": 1, "scene": sid, "seed": s, "config_hash": "bench",
+                                                     "extent": [0, 40, 0, 40], "objects": objs}))
+        paths.append(out / f"{sid}.npz")
+    return paths
+
+
+def _scene_paths(n: int, synthetic: bool, tmp: Path) -> list[Path]:
+    split = REPO / "results" / "splits" / "train.txt"
+    if not synthetic and split.exists():
+        ids = split.read_text().split()
+        paths = [REPO / "results" / "scenes" / f"{i}.npz" for i in ids]
+        paths = [p for p in paths if p.exists()][:n]
+        if len(paths) == n:
+            return paths
+    return _synthetic_scenes(n, tmp)
+
+
+def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: int, threads: int, device: str | None,
+            train_scenes: int, q) -> None:
+    import torch
+
+    from sonardet.detect.sasa import DEFAULTS, PAPER, SASADetector, resolve_params
+    from sonardet.detect.sasa.data import prepare_scene
+    from sonardet.detect.sasa.train import _detect_prepared, _make_batch, peak_memory_mb, resolve_device
+
+    torch.set_num_threads(threads)
+    base = {"DEFAULTS": DEFAULTS, "PAPER": PAPER}[name]
+    params = resolve_params(overrides, base=base)
+    dev = resolve_device(device)
+    bs = int(params["batch_size"])
+    t0 = time.perf_counter()
+    scenes = [prepare_scene(p, params) for p in paths]
+    prep = (time.perf_counter() - t0) / len(scenes)
+    torch.manual_seed(0)
+    model = SASADetector(params).to(dev)
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-3, weight_decay=0.01)
+
+    def sync():
+        if dev.type == "cuda":
+            torch.cuda.synchronize(dev)
+
+    times = []
+    for i in range(warmup + steps):
+        sel = [scenes[(i * bs + j) % len(scenes)] for j in range(bs)]
+        sync()
+        t = time.perf_counter()
+        batch = _make_batch(sel, params, np.random.default_rng(i), dev, True)
+        loss, _ = model.loss(model(batch), batch)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sync()
+        if i >= warmup:
+            times.append(time.perf_counter() - t)
+    step_s = float(np.median(times))
+    inf = []
+    for i, s in enumerate(scenes):
+        sync()
+        t = time.perf_counter()
+        _detect_prepared(model, s, params, dev)
+        sync()
+        if i > 0 or len(scenes) == 1:
+            inf.append(time.perf_counter() - t)
+    steps_per_epoch = math.ceil(train_scenes / bs)
+    q.put({
+        "config": name, "device": str(dev), "threads": threads, "batch_size": bs, "n_points": int(params["n_points"]),
+        "n_params": sum(p.numel() for p in model.parameters()),
+        "prepare_s_per_scene": prep, "train_s_per_step": step_s, "train_s_per_step_min": float(np.min(times)),
+        "train_s_per_scene": step_s / bs, "infer_s_per_scene": float(np.median(inf)),
+        "epoch_s_est": step_s * steps_per_epoch, "train_scenes": train_scenes, "epochs": int(params["epochs"]),
+        "schedule_s_est": step_s * steps_per_epoch * int(params["epochs"]),
+        **peak_memory_mb(dev),
+    })
+
+
+def main(argv=None) -> list[dict]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--steps", type=int, default=5, help="timed training steps per configuration")
+    ap.add_argument("--warmup", type=int, default=1)
+    ap.add_argument("--n-scenes", type=int, default=8, help="scenes loaded (>= the PAPER batch size)")
+    ap.add_argument("--train-scenes", type=int, default=80, help="training-set size for the epoch estimate")
+    ap.add_argument("--configs", default="DEFAULTS,PAPER")
+    ap.add_argument("--device", default=None, help="cpu, cuda (default: cuda if available)")
+    ap.add_argument("--synthetic", action="store_true", help="use synthetic scenes even if results/ has some")
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = [str(p) for p in _scene_paths(args.n_scenes, args.synthetic, Path(tmp))]
+        ctx = mp.get_context("spawn")
+        for name in args.configs.split(","):
+            q = ctx.Queue()
+            proc = ctx.Process(target=_worker, args=(name, {"progress": False}, paths, args.steps, args.warmup,
+                                                     args.threads, args.device, args.train_scenes, q))
+            proc.start()
+            row = q.get()
+            proc.join()
+            rows.append(row)
+    cpu = platform.processor() or platform.machine()
+    print(f"machine: {platform.node()} {cpu}, torch threads {args.threads}, scenes: {len(paths)} "
+          f"({'synthetic' if 'syn' in Path(paths[0]).stem else 'results/scenes'})")
+    head = ("config", "device", "batch", "points", "params", "s/step", "s/scene(train)", "s/scene(infer)",
+            "prep s/scene", f"epoch s ({args.train_scenes} sc.)", "schedule h", "peak RSS MB")
+    print(" | ".join(head))
+    for r in rows:
+        print(" | ".join([r["config"], r["device"], str(r["batch_size"]), str(r["n_points"]), f"{r['n_params']:,}",
+                          f"{r['train_s_per_step']:.2f}", f"{r['train_s_per_scene']:.2f}", f"{r['infer_s_per_scene']:.2f}",
+                          f"{r['prepare_s_per_scene']:.2f}", f"{r['epoch_s_est']:.0f}",
+                          f"{r['schedule_s_est'] / 3600:.2f} ({r['epochs']} ep.)", f"{r['peak_rss_mb']:.0f}"]))
+    if args.json:
+        Path(args.json).write_text(json.dumps({"machine": platform.node(), "rows": rows}, indent=1))
+    return rows
+
+
+if __name__ == "__main__":
+    main()

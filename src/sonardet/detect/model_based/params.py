@@ -1,0 +1,247 @@
+"""Hyper-parameters of the model-based detector: `DEFAULTS` (variant `ours`) and `PAPER` (variant `paper`).
+
+Plain dicts with units in the key names (m, rad, deg, s; `_frac` = share 0..1; `_n` = count). Per-class
+values are dicts class -> value; a class missing from such a dict falls back to the `"*"` entry.
+`resolve_params(params, variant)` merges a caller's (partial) dict over the variant's defaults and
+rejects unknown keys, so a typo fails loudly. Every key is described in `DESCRIPTIONS`.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+#: Variant `ours`: terrain-following seabed, BEV-correlation proposals, robust scene-to-model ICP
+#: with two-way scoring, greedy explain-away selection and re-proposals from unexplained points.
+DEFAULTS: dict = {
+    "seed": 0,
+    # Seabed.
+    "ground_method": "grid",
+    "ground_cell_m": 1.0,
+    "ground_window_m": 7.0,
+    "ground_refine_cell_m": 0.5,
+    "ground_refine_bands_m": [0.3, 0.12],
+    "ground_min_height_m": 0.15,
+    "ransac_distance_m": 0.15,
+    "ransac_iter_n": 1000,
+    "ransac_sample_n": 20000,
+    # Proposals (BEV height-map correlation).
+    "bev_cell_m": 0.1,
+    "bev_yaw_step_deg": 15.0,
+    "proposal_ncc_min": 0.3,
+    "proposal_occupancy_min_frac": 0.25,
+    "proposal_nms_radius_frac": 0.4,
+    "proposal_merge_m": 0.3,
+    "proposal_vote_min_frac": 0.2,
+    "proposal_max_rounds_n": 3,
+    "proposal_min_points_frac": 0.15,
+    "proposal_min_height_frac": 0.5,
+    "residual_min_points_n": 40,
+    "residual_min_height_m": 0.35,
+    "residual_seed_sigma_m": 0.35,
+    "residual_seed_sep_m": 0.6,
+    "residual_max_seeds_n": 12,
+    "tumbled_inits": True,
+    "tumbled_shift_q_min": 0.45,
+    "tumbled_screen_keep_n": 4,
+    "icp_screen_stage": [0.4, 6, 0.2],
+    # Registration.
+    "crop_margin_m": 0.3,
+    "icp_stages": [[0.35, 12, 0.15], [0.15, 8, 0.1]],
+    "icp_tukey_k_frac": 0.5,
+    "icp_min_points_n": 20,
+    "surface_spacing_m": 0.06,
+    "template_voxel_m": 0.05,
+    "n_yaw_init": 2,
+    "icp_xy_starts_m": 0.2,
+    "icp_shift_q_range": [0.6, 0.95],
+    "coarse_q_min": 0.3,
+    "coarse_q_dist_m": 0.05,
+    "coarse_n_min_frac": 0.5,
+    "class_q_margin": 0.3,
+    "class_competition_m": 0.6,
+    # Scoring.
+    "inlier_m": 0.05,
+    "coverage_m": 0.08,
+    "coverage_voxel_m": 0.1,
+    "claim_m": 0.08,
+    "score_min": 0.15,
+    "accept_min": 0.35,
+    "new_min_frac": 0.5,
+    "replace_factor": 1.5,
+    "penetration_max_frac": 0.05,
+    "sink_max_m": 0.25,
+    "rmse_max_m": {"*": 0.05},
+    "keep_rejected": True,
+    "rejected_score_factor": 0.1,
+    # Duplicates (of the non-accepted hypotheses kept for recall).
+    "duplicate_dist_m": 0.5,
+}
+
+#: Variant `paper`: the source study's pipeline: one RANSAC plane, sliding windows per class, centroid
+#: alignment + point-to-point ICP of one template, RMSE threshold per class, best of duplicates.
+PAPER: dict = {
+    "seed": 0,
+    "ground_method": "ransac",
+    "ground_cell_m": 1.0,
+    "ground_window_m": 7.0,
+    "ground_refine_cell_m": 0.5,
+    "ground_refine_bands_m": [0.3, 0.12],
+    "ground_min_height_m": 0.2,
+    "ransac_distance_m": 0.15,
+    "ransac_iter_n": 1000,
+    "ransac_sample_n": 20000,
+    "window_scale": 1.3,
+    "window_overlap": 0.5,
+    "window_min_points_frac": 0.25,
+    "window_min_thickness_m": 0.03,
+    "skip_empty_windows": True,
+    "icp_max_corr_m": 0.3,
+    "icp_max_iter": 30,
+    "template_view": "nadir",
+    "surface_spacing_m": 0.06,
+    "template_voxel_m": 0.05,
+    "fitness_min": 0.5,
+    "score": "fitness_rmse",
+    # Calibrated on training scenes (s0000, s0006, s0008): about the 90th percentile of the RMSE of
+    # fits within 0.5 m of a true object of the class (point-to-point RMSE includes the sampling gap
+    # between two independent scans of one surface, about half the 5-7 cm sounding spacing).
+    "rmse_max_m": {"reef_ring": 0.16, "reef_cone": 0.145, "tetrapod_b": 0.15, "tetrapod_s": 0.15, "*": 0.15},
+    "duplicate_dist_m": 1.0,
+}
+
+#: Key -> (unit, meaning); the final report and the config schema take their text from here.
+DESCRIPTIONS: dict = {
+    "seed": ("-", "seed of Open3D's RANSAC and Poisson-disk sampling (deterministic output)"),
+    "ground_method": ("-", "'grid' (grid minimum + grey opening + median refinement) or 'ransac' (one plane)"),
+    "ground_cell_m": ("m", "grid-minimum cell of the seabed DTM"),
+    "ground_window_m": ("m", "grey-opening window; must bridge the widest object group's footprint"),
+    "ground_refine_cell_m": ("m", "cell of the median refinement of the DTM"),
+    "ground_refine_bands_m": ("m", "height bands around the current DTM whose points refine it, one pass each"),
+    "ground_min_height_m": ("m", "points higher than this above the seabed are object candidates"),
+    "ransac_distance_m": ("m", "inlier distance of the RANSAC seabed plane"),
+    "ransac_iter_n": ("-", "RANSAC iterations for the seabed plane"),
+    "ransac_sample_n": ("-", "points (seeded random subset) the RANSAC plane is fitted on"),
+    "bev_cell_m": ("m", "cell of the height-above-seabed map and of the class kernels"),
+    "bev_yaw_step_deg": ("deg", "yaw step of the kernels of n-fold symmetric classes (within one period)"),
+    "proposal_ncc_min": ("-", "minimum masked normalised cross-correlation of a proposal peak"),
+    "proposal_occupancy_min_frac": ("-", "minimum share of the kernel footprint holding points above the seabed"),
+    "proposal_nms_radius_frac": ("-", "peak suppression radius as a share of the class radius"),
+    "proposal_vote_min_frac": ("-",
+                               'later rounds: minimum share of a class footprint occupied by unexplained points (vote '
+                               'proposals)'),
+    "proposal_merge_m": ("m", "proposals of one class closer than this are merged"),
+    "proposal_min_points_frac": ("-", "skip proposals whose crop holds fewer candidate points than this share of "
+                                      "the class's median template view (the 'skip empty windows' of ours)"),
+    "proposal_min_height_frac": ("-", "skip proposals whose crop is lower above the seabed than this share of the "
+                                      "class height (of the pose tried)"),
+    "proposal_max_rounds_n": ("-", "proposal/accept rounds; later rounds use only unexplained points"),
+    "residual_min_points_n": ("-", "unexplained clusters with fewer points are ignored"),
+    "residual_min_height_m": ("m", "unexplained clusters lower than this above the seabed are ignored"),
+    "residual_seed_sigma_m": ("m", "Gaussian smoothing of the unexplained-point density whose peaks seed "
+                                   "tumbled hypotheses"),
+    "residual_seed_sep_m": ("m", "least distance between two such seeds"),
+    "residual_max_seeds_n": ("-", "most seeds per cluster of unexplained points"),
+    "tumbled_inits": ("-",
+                      'try tumbled orientations (cone on its side, ring on edge, tilted tetrapods) on '
+                      'unexplained clusters'),
+    "tumbled_shift_q_min": ("-", "tumbled starts: shifted restarts already from this coarse quality"),
+    "tumbled_screen_keep_n": ("-",
+                              'tumbled starts: only the best this many after the screening ICP go on to the coarse '
+                              'stage'),
+    "icp_screen_stage": ("m, -, m",
+                         'screening ICP of many starts: [max correspondence distance, iterations, source voxel]'),
+    "crop_margin_m": ("m", "scene crop radius = class radius + this"),
+    "icp_stages": ("m, -, m",
+                   'coarse-to-fine ICP: [max correspondence distance, iterations, source voxel] per stage'),
+    "icp_tukey_k_frac": ("-", "Tukey kernel width as a share of the stage's correspondence distance"),
+    "icp_min_points_n": ("-", "fewest scene points (and correspondences) for a fit"),
+    "surface_spacing_m": ("m", "spacing of the mesh surface samples (ICP target)"),
+    "template_voxel_m": ("m", "voxel that thins the template views"),
+    "icp_xy_starts_m": ("m", "shifted coarse restarts this far off the best start in +-x and +-y (0: off)"),
+    "icp_shift_q_range": ("-",
+                          'shifted restarts only when the best coarse quality (share of crop points within '
+                          'coarse_q_dist_m) is in [lo, hi)'),
+    "coarse_q_dist_m": ("m",
+                        'distance to the model surface within which a crop point counts for the coarse quality'),
+    "coarse_q_min": ("-", "proposals whose best coarse quality is lower are dropped, unless..."),
+    "coarse_n_min_frac": ("-", "...their crop holds at least this share of the class's median template view "
+                               "on the surface (crowded crops: piles)"),
+    "class_q_margin": ("-",
+                       'proposals more than this below the best coarse quality of any class within '
+                       'class_competition_m are dropped'),
+    "class_competition_m": ("m", "radius of the class competition between proposals"),
+    "n_yaw_init": ("-", "yaw starts per proposal for n-fold symmetric classes (spread over one period)"),
+    "inlier_m": ("m", "scene point to mesh distance counted as explained by a hypothesis"),
+    "coverage_m": ("m", "template point to scene distance counted as seen (template->scene fraction)"),
+    "coverage_voxel_m": ("m", "voxel thinning the template views (and ray spacing of the virtual views of "
+                               "tumbled poses) "
+                               "for the template->scene fraction"),
+    "claim_m": ("m", "scene points this close to an accepted object's mesh are explained by it"),
+    "score_min": ("-", "hypotheses scoring less are dropped"),
+    "accept_min": ("-", "score needed to accept a hypothesis as an object (explain-away)"),
+    "new_min_frac": ("-", "share of a hypothesis' inliers not yet explained needed to accept it"),
+    "replace_factor": ("-", "a hypothesis whose inliers are mostly explained already may replace the accepted "
+                            "objects owning them if it scores this many times each of them (0: never)"),
+    "penetration_max_frac": ("-", "largest share of a hypothesis' surface inside an accepted object"),
+    "sink_max_m": ("m",
+                   'a hypothesis whose lowest vertex is deeper than this below the seabed is implausible '
+                   '(score 0)'),
+    "rmse_max_m": ("m", "per class: largest inlier RMSE of an accepted fit"),
+    "keep_rejected": ("-", "also output non-accepted hypotheses (score scaled down) for recall at low rank"),
+    "rejected_score_factor": ("-", "score factor of non-accepted hypotheses"),
+    "window_scale": ("-", "window side = class footprint (largest horizontal extent) x this"),
+    "window_overlap": ("-", "overlap of adjacent windows (0..1)"),
+    "window_min_points_frac": ("-",
+                               "skip windows with fewer object-candidate points than this share of the class's median "
+                               'template view'),
+    "window_min_thickness_m": ("m",
+                               "windows whose points' smallest principal spread is below this are planar (seabed): not "
+                               'registered'),
+    "skip_empty_windows": ("-",
+                           'skip windows below the point threshold (False: register every window, for benchmarks)'),
+    "icp_max_corr_m": ("m", "point-to-point ICP correspondence distance (paper)"),
+    "icp_max_iter": ("-", "point-to-point ICP iterations (paper)"),
+    "template_view": ("-", "'nadir' (view under the track, yaw 0) or 'all' (every view tried, best RMSE)"),
+    "fitness_min": ("-", "least share of template points with a correspondence (paper)"),
+    "score": ("-", "paper ranking: 'rmse' (1 - rmse / rmse_max) or 'fitness_rmse' (fitness x that)"),
+    "duplicate_dist_m": ("m", "detections (any class) with centres closer than this are duplicates; the best is kept "
+                               "(ours: applies to the non-accepted hypotheses kept for recall)"),
+}
+
+VARIANTS = {"ours": DEFAULTS, "paper": PAPER}
+
+
+def resolve_params(params: dict | None, variant: str) -> dict:
+    """The variant's defaults updated with `params` (deep copy).
+
+    Raises ValueError for an unknown variant, a key the variant does not have (unknown, or one of the
+    other variant's), a non-finite number or a window overlap outside [0, 1).
+    """
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown model-based variant {variant!r}; choose one of {sorted(VARIANTS)}")
+    base = VARIANTS[variant]
+    out = copy.deepcopy(base)
+    for k, v in (params or {}).items():
+        if k not in base:
+            other = [n for n, d in VARIANTS.items() if k in d]
+            hint = f" (a parameter of variant {other[0]!r})" if other else ""
+            raise ValueError(f"unknown model-based detector parameter {k!r} for variant {variant!r}{hint}; "
+                             f"known: {', '.join(sorted(base))}")
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(f"model-based detector parameter {k!r} must be finite, got {v!r}")
+        out[k] = copy.deepcopy(v)
+    if not 0.0 <= float(out.get("window_overlap", 0.5)) < 1.0:
+        raise ValueError(f"window_overlap must be in [0, 1), got {out['window_overlap']}")
+    return out
+
+
+def per_class(value, cls: str):
+    """A per-class parameter's value for `cls` (dict with optional '*' fallback, or a scalar)."""
+    if isinstance(value, dict):
+        if cls in value:
+            return value[cls]
+        if "*" in value:
+            return value["*"]
+        raise ValueError(f"per-class parameter has no entry for {cls!r} and no '*' fallback: {value}")
+    return value

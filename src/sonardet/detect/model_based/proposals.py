@@ -1,0 +1,202 @@
+"""Where to look: sliding windows (the source study) or proposals from the height-above-seabed map.
+
+Frames: the detector's local frame (metres). A raster has cell `cell_m`, origin (x0, y0) at the
+lower-left corner of cell (0, 0); cell (i, j) covers x in [x0 + j cell, x0 + (j+1) cell), y likewise
+with i. Proposals are (x, y) positions of the class's canonical origin (base centre) plus a yaw.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage as ndi
+from scipy.signal import fftconvolve
+
+
+@dataclass
+class Raster:
+    """Height above seabed (m) per BEV cell: the highest point's; NaN where the sonar saw nothing."""
+
+    h: np.ndarray
+    x0: float
+    y0: float
+    cell_m: float
+
+    def cell_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Row and column indices (clipped into the raster) of positions (K,2)."""
+        j = np.clip(((xy[:, 0] - self.x0) / self.cell_m).astype(np.int64), 0, self.h.shape[1] - 1)
+        i = np.clip(((xy[:, 1] - self.y0) / self.cell_m).astype(np.int64), 0, self.h.shape[0] - 1)
+        return i, j
+
+    def centre(self, i, j) -> np.ndarray:
+        """Cell centres (K,2) of row/column indices."""
+        x = self.x0 + (np.asarray(j) + 0.5) * self.cell_m
+        y = self.y0 + (np.asarray(i) + 0.5) * self.cell_m
+        return np.stack([x, y], -1)
+
+
+def height_raster(xy: np.ndarray, hab: np.ndarray, cell_m: float, x0: float, y0: float, shape,
+                  fill_cells: int = 1) -> Raster:
+    """Max height above seabed (m) of points (xy (N,2), hab (N,)) per cell of a raster of `shape`.
+
+    Soundings are sparser than fine cells (a ping line every few decimetres), so empty cells take the
+    maximum of the cells within `fill_cells` (a grey dilation restricted to empty cells); cells with
+    no point that near stay NaN (no data: shadow).
+    """
+    r = Raster(np.full(shape, -np.inf), x0, y0, cell_m)
+    if len(xy):
+        i, j = r.cell_of(xy)
+        flat = r.h.ravel()
+        np.maximum.at(flat, i * shape[1] + j, hab)
+        r.h = flat.reshape(shape)
+    if fill_cells > 0:
+        empty = ~np.isfinite(r.h)
+        grown = ndi.grey_dilation(r.h, size=(2 * fill_cells + 1,) * 2, mode="constant", cval=-np.inf)
+        r.h[empty] = grown[empty]
+    r.h[~np.isfinite(r.h)] = np.nan
+    return r
+
+
+def vote_map(r: Raster, kernels: list, occupied_min_m: float):
+    """Share of each kernel's footprint (cells the class's top surface covers) that holds points above
+    `occupied_min_m`, best over the kernels, with the index of the best kernel. A plain occupancy
+    correlation (Hough-like): partial objects (a ring half under another) still peak at their centre."""
+    occ = (np.nan_to_num(r.h, nan=0.0) > occupied_min_m).astype(np.float64)
+    best = np.full(r.h.shape, -1.0)
+    arg = np.zeros(r.h.shape, dtype=np.int64)
+    for k, ker in enumerate(kernels):
+        fp = (ker.height > occupied_min_m).astype(np.float64)
+        v = _corr(occ, fp) / max(fp.sum(), 1.0)
+        better = v > best
+        best[better] = v[better]
+        arg[better] = k
+    return best, arg
+
+
+@dataclass
+class Kernel:
+    """A class's top-surface height map (m above its base) at one yaw, on a square grid of BEV cells
+    centred on the canonical origin, with the disk support it is compared over."""
+
+    yaw_rad: float
+    height: np.ndarray
+    support: np.ndarray
+
+
+def class_kernels(model, cell_m: float, yaw_step_deg: float) -> list[Kernel]:
+    """Upright kernels of a class: one for continuous symmetry, else one per `yaw_step_deg` within a period."""
+    if model.symmetric:
+        yaws = [0.0]
+    else:
+        period = np.degrees(model.yaw_period_rad)
+        yaws = np.deg2rad(np.arange(0.0, period - 1e-9, yaw_step_deg))
+    out = []
+    for yaw in yaws:
+        h, c = model.top_height_map(cell_m, float(yaw), model.radius_m + 2 * cell_m)
+        gx, gy = np.meshgrid(c, c)
+        support = (np.hypot(gx, gy) <= model.radius_m + cell_m).astype(np.float64)
+        out.append(Kernel(float(yaw), np.where(np.isfinite(h), h, 0.0) * support, support))
+    return out
+
+
+def _corr(a: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Correlation of raster a with kernel k ('same' size), in float32 (twice as fast as float64; the
+    sums involved are of a few thousand cells of heights below 10 m)."""
+    return fftconvolve(a.astype(np.float32, copy=False), k[::-1, ::-1].astype(np.float32), mode="same")
+
+
+def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float):
+    """Masked normalised cross-correlation (Padfield 2012) of the height raster with each kernel.
+
+    Cells without data (NaN: sonar shadow, or hidden under an accepted object) are left out of the sums.
+    Returns (best NCC per cell, index of the best kernel per cell, share of the support's cells with
+    data that hold points above `occupied_min_m`).
+    """
+    d = np.isfinite(r.h).astype(np.float64)
+    f = np.where(d > 0, np.clip(np.nan_to_num(r.h), 0.0, None), 0.0)
+    occ = (f > occupied_min_m).astype(np.float64)
+    best = np.full(r.h.shape, -1.0)
+    arg = np.zeros(r.h.shape, dtype=np.int64)
+    occ_frac = None
+    cache = {}
+    for k, ker in enumerate(kernels):
+        key = ker.support.shape
+        if key not in cache:
+            m = ker.support
+            n = np.maximum(_corr(d, m), 1.0)
+            cache[key] = (n, _corr(f, m), _corr(f * f, m), _corr(occ, m) / n)
+        n, sf, sff, of = cache[key]
+        occ_frac = of
+        t = ker.height
+        st, stt, sft = _corr(d, t), _corr(d, t * t), _corr(f, t)
+        num = sft - sf * st / n
+        den = np.sqrt(np.clip((sff - sf * sf / n) * (stt - st * st / n), 1e-12, None))
+        ncc = np.where(n >= 0.3 * ker.support.sum(), num / den, -1.0)
+        better = ncc > best
+        best[better] = ncc[better]
+        arg[better] = k
+    return best, arg, occ_frac
+
+
+def ncc_peaks(best: np.ndarray, occ_frac: np.ndarray, ncc_min: float, occ_min: float, nms_radius_cells: int):
+    """Row/column indices of local maxima of `best` within `nms_radius_cells` that pass both minima."""
+    size = 2 * max(1, int(nms_radius_cells)) + 1
+    mx = ndi.maximum_filter(best, size=size, mode="constant", cval=-1.0)
+    ok = (best >= mx) & (best >= ncc_min) & (occ_frac >= occ_min)
+    i, j = np.nonzero(ok)
+    order = np.argsort(-best[i, j], kind="stable")
+    return i[order], j[order]
+
+
+def sliding_windows(xy_min, xy_max, side_m: float, overlap: float) -> np.ndarray:
+    """Square windows (K,4) [xmin, ymin, xmax, ymax] of side `side_m` (m) covering the rectangle, with
+    `overlap` (0..1) between neighbours; the grid starts at xy_min (deterministic for a given cloud)."""
+    step = side_m * (1.0 - overlap)
+    if step <= 0:
+        raise ValueError(f"window step must be > 0 (side {side_m} m, overlap {overlap})")
+    xs = np.arange(xy_min[0], max(xy_min[0], xy_max[0] - side_m) + step - 1e-9, step)
+    ys = np.arange(xy_min[1], max(xy_min[1], xy_max[1] - side_m) + step - 1e-9, step)
+    gx, gy = np.meshgrid(xs, ys)
+    lo = np.stack([gx.ravel(), gy.ravel()], 1)
+    return np.hstack([lo, lo + side_m])
+
+
+def window_counts(xy: np.ndarray, windows: np.ndarray, cell_m: float = 0.05) -> np.ndarray:
+    """Points (K,2) per window (W,4), counted with an integral image of `cell_m` cells (windows snapped to cells)."""
+    if len(xy) == 0 or len(windows) == 0:
+        return np.zeros(len(windows), dtype=np.int64)
+    x0, y0 = windows[:, 0].min(), windows[:, 1].min()
+    nx = int(np.ceil((max(windows[:, 2].max(), xy[:, 0].max()) - x0) / cell_m)) + 2
+    ny = int(np.ceil((max(windows[:, 3].max(), xy[:, 1].max()) - y0) / cell_m)) + 2
+    j = np.clip(((xy[:, 0] - x0) / cell_m).astype(np.int64), 0, nx - 1)
+    i = np.clip(((xy[:, 1] - y0) / cell_m).astype(np.int64), 0, ny - 1)
+    grid = np.zeros((ny + 1, nx + 1), dtype=np.int64)
+    np.add.at(grid, (i + 1, j + 1), 1)
+    ii = grid.cumsum(0).cumsum(1)
+    c = lambda v, o, n: np.clip(np.round((v - o) / cell_m).astype(np.int64), 0, n)  # noqa: E731
+    j0, j1 = c(windows[:, 0], x0, nx), c(windows[:, 2], x0, nx)
+    i0, i1 = c(windows[:, 1], y0, ny), c(windows[:, 3], y0, ny)
+    return ii[i1, j1] - ii[i0, j1] - ii[i1, j0] + ii[i0, j0]
+
+
+def clusters(xy: np.ndarray, cell_m: float, min_points: int):
+    """Connected groups of points (K,2) on a BEV occupancy grid of `cell_m` (8-connected).
+
+    Returns a list of index arrays, one per cluster of at least `min_points` points, largest first.
+    """
+    if len(xy) == 0:
+        return []
+    x0, y0 = xy.min(0)
+    j = ((xy[:, 0] - x0) / cell_m).astype(np.int64)
+    i = ((xy[:, 1] - y0) / cell_m).astype(np.int64)
+    occ = np.zeros((i.max() + 1, j.max() + 1), dtype=bool)
+    occ[i, j] = True
+    lab, n = ndi.label(occ, structure=np.ones((3, 3), dtype=bool))
+    pl = lab[i, j]
+    order = np.argsort(pl, kind="stable")
+    bounds = np.flatnonzero(np.r_[True, pl[order][1:] != pl[order][:-1], True])
+    out = [order[bounds[k]:bounds[k + 1]] for k in range(len(bounds) - 1)]
+    out = [o for o in out if len(o) >= min_points]
+    out.sort(key=lambda o: (-len(o), int(o[0])))
+    return out

@@ -1,0 +1,165 @@
+"""Registration of class models to scene crops with Open3D ICP, with guards for degenerate input.
+
+Poses are (R (3,3), t (3,)) taking canonical object coordinates into the detector's local scene frame:
+p_scene = R p_canonical + t (metres). ICP works on float64 Open3D point clouds.
+
+* `icp_point_to_point`: the source study's step: the template (source) moved onto the window points
+  (target) by point-to-point ICP from a centroid alignment.
+* `icp_scene_to_model`: the `ours` step: the scene crop (source) registered onto the evenly sampled
+  mesh surface (target, with normals) by point-to-plane ICP with a Tukey robust kernel, coarse to fine
+  (a list of (max correspondence distance m, iterations, voxel m) stages). Registering the scene to
+  the model means extra scene points (neighbours, clutter) are rejected by the kernel, while model
+  parts the sonar did not see cost nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+reg = o3d.pipelines.registration
+
+
+@dataclass
+class IcpResult:
+    """Outcome of one ICP run: pose (canonical -> scene), Open3D fitness (share of source points with a
+    correspondence, 0..1) and inlier RMSE (m) of the last stage, iterations run."""
+
+    R: np.ndarray
+    t: np.ndarray
+    fitness: float
+    rmse_m: float
+
+
+def degenerate_reason(points: np.ndarray, min_points: int, min_spread_m: float = 0.02,
+                      min_thickness_m: float = 0.0) -> str | None:
+    """Why `points` (K,3) cannot support a rigid 6-DOF fit, or None if they can.
+
+    Reasons: fewer than `min_points` (at least 3) points, non-finite values, a collinear set (the
+    second principal spread, in metres, below `min_spread_m`) or, when `min_thickness_m` > 0, a planar
+    set (the third principal spread below it: a patch of seabed or any flat surface).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < max(3, int(min_points)):
+        return f"too few points ({len(p)} < {max(3, int(min_points))})"
+    if not np.all(np.isfinite(p)):
+        return "non-finite coordinates"
+    c = p - p.mean(0)
+    ev = np.linalg.eigvalsh(c.T @ c / len(p))
+    spread = np.sqrt(np.clip(ev, 0, None))
+    if spread[1] < min_spread_m:
+        return f"collinear points (second spread {spread[1]:.4f} m < {min_spread_m} m)"
+    if min_thickness_m > 0 and spread[0] < min_thickness_m:
+        return f"planar points (thickness {spread[0]:.4f} m < {min_thickness_m} m)"
+    return None
+
+
+def _pcd(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometry.PointCloud:
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
+    if normals is not None:
+        pcd.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, dtype=np.float64))
+    return pcd
+
+
+def _valid_transform(T: np.ndarray) -> bool:
+    if not np.all(np.isfinite(T)):
+        return False
+    R = T[:3, :3]
+    return abs(np.linalg.det(R) - 1.0) < 1e-3 and float(np.abs(R.T @ R - np.eye(3)).max()) < 1e-3
+
+
+def icp_point_to_point(template: np.ndarray, window: np.ndarray, max_corr_m: float, max_iter: int,
+                       R0: np.ndarray | None = None, min_points: int = 10,
+                       min_thickness_m: float = 0.0) -> IcpResult | None:
+    """The source study's registration: template (canonical, (K,3)) onto window points ((M,3), scene frame).
+
+    Initial pose: rotation R0 (identity by default) and the translation that puts the template's
+    centroid on the window's centroid; then point-to-point ICP (`max_corr_m` correspondence distance,
+    `max_iter` iterations). Returns None for degenerate input (fewer than `min_points`, collinear or
+    non-finite points; a window thinner than `min_thickness_m`), a non-finite result or one without
+    correspondences.
+    """
+    if degenerate_reason(template, min_points) or \
+            degenerate_reason(window, min_points, min_thickness_m=min_thickness_m):
+        return None
+    R0 = np.eye(3) if R0 is None else np.asarray(R0, dtype=np.float64)
+    T0 = np.eye(4)
+    T0[:3, :3] = R0
+    T0[:3, 3] = window.mean(0) - R0 @ template.mean(0)
+    res = reg.registration_icp(_pcd(template), _pcd(window), float(max_corr_m), T0,
+                               reg.TransformationEstimationPointToPoint(),
+                               reg.ICPConvergenceCriteria(1e-6, 1e-6, int(max_iter)))
+    T = np.asarray(res.transformation)
+    if not _valid_transform(T) or len(res.correspondence_set) < 3:
+        return None
+    return IcpResult(T[:3, :3].copy(), T[:3, 3].copy(), float(res.fitness), float(res.inlier_rmse))
+
+
+class SurfaceTarget:
+    """A model surface (canonical points + normals) ready to be an ICP target (one Open3D cloud)."""
+
+    def __init__(self, points: np.ndarray, normals: np.ndarray):
+        self.points = np.asarray(points, dtype=np.float64)
+        self.pcd = _pcd(self.points, normals)
+
+
+class SceneSource:
+    """Scene points prepared once as ICP sources: the full cloud and its voxel-thinned versions."""
+
+    def __init__(self, points: np.ndarray, min_points: int = 10):
+        self.points = np.asarray(points, dtype=np.float64)
+        self.min_points = int(min_points)
+        self.reason = degenerate_reason(self.points, min_points)
+        self._full = _pcd(self.points) if self.reason is None else None
+        self._thin: dict = {}
+
+    def at(self, voxel_m: float) -> o3d.geometry.PointCloud:
+        """The source cloud thinned to `voxel_m` (the full cloud if thinning leaves too few points)."""
+        if not voxel_m or voxel_m <= 0:
+            return self._full
+        if voxel_m not in self._thin:
+            thin = self._full.voxel_down_sample(float(voxel_m))
+            self._thin[voxel_m] = thin if len(thin.points) >= self.min_points else self._full
+        return self._thin[voxel_m]
+
+
+def icp_scene_to_model(scene_pts, target, R0: np.ndarray, t0: np.ndarray, stages, tukey_k_factor: float = 0.5,
+                       min_points: int = 10) -> IcpResult | None:
+    """Register scene points onto a model surface, starting from pose (R0, t0).
+
+    scene_pts: (K,3) points in the scene frame, or a prepared `SceneSource`. target: a `SurfaceTarget`
+    or a list of them, one per stage (e.g. a coarser surface sampling for the coarse stage).
+    stages: sequence of (max correspondence distance m, max iterations, source voxel m or 0); each
+    stage runs point-to-plane ICP with a Tukey kernel of width tukey_k_factor x the distance. The
+    pose returned maps canonical coordinates into the scene. Returns None for degenerate input (see
+    `degenerate_reason`), too few correspondences, or a non-finite or improper result.
+    """
+    src_all = scene_pts if isinstance(scene_pts, SceneSource) else SceneSource(scene_pts, min_points)
+    if src_all.reason is not None:
+        return None
+    targets = target if isinstance(target, (list, tuple)) else [target] * len(stages)
+    R0 = np.asarray(R0, dtype=np.float64)
+    t0 = np.asarray(t0, dtype=np.float64)
+    if not (np.all(np.isfinite(R0)) and np.all(np.isfinite(t0))):
+        return None
+    # Scene -> canonical is the inverse pose.
+    T = np.eye(4)
+    T[:3, :3] = R0.T
+    T[:3, 3] = -R0.T @ t0
+    res = None
+    for (max_corr, n_iter, voxel), tgt in zip(stages, targets):
+        src = src_all.at(voxel)
+        est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=float(tukey_k_factor * max_corr)))
+        res = reg.registration_icp(src, tgt.pcd, float(max_corr), T, est,
+                                   reg.ICPConvergenceCriteria(1e-6, 1e-6, int(n_iter)))
+        T_new = np.asarray(res.transformation)
+        if not _valid_transform(T_new) or len(res.correspondence_set) < min_points:
+            return None
+        T = T_new
+    if res is None:
+        return None
+    Rinv, tinv = T[:3, :3], T[:3, 3]
+    R = Rinv.T
+    return IcpResult(R.copy(), -R @ tinv, float(res.fitness), float(res.inlier_rmse))

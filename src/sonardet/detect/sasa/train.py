@@ -1,0 +1,412 @@
+"""Training and inference of the SASA detector (function API used by the workflow and the CLI).
+
+* :func:`train` -- fits a model on prepared training scenes and writes ``model.pt``, ``loss.csv``
+  (one row per epoch) and ``train.json`` (time, steps, seconds per step, peak memory, validation mAP)
+  into ``out_dir``; ``checkpoint.pt`` is written after every epoch and resumed from (a checkpoint of
+  another config or another training set is refused with a message naming the setting).
+* :func:`infer` -- runs a saved model on scene files and returns ``{scene_id: detections}`` in the
+  scene frame (``[{cls, box, score, extras}]``, the format of ``sonardet.io.annotations``).
+* :func:`detect_points` -- the same for an in-memory cloud (N, 3) float64 (e.g. a user's survey).
+
+Determinism: the model is initialised from ``seed``; the order of the scenes in every epoch, the
+point samples and the augmentation of every step come from seeds derived from (``seed``, epoch,
+step), so a resumed run continues exactly as an uninterrupted one; inference samples points with a
+seed derived from (``seed``, scene id).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import math
+import resource
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ... import SCHEMA_VERSION
+from ...config import derive_seed
+from ...io.atomic import atomic_path, atomic_write_text
+from .config import (
+    ARCHITECTURE_KEYS,
+    INFERENCE_KEYS,
+    RUNTIME_KEYS,
+    architecture_settings,
+    describe_difference,
+    model_settings,
+    resolve_params,
+)
+from .data import PreparedScene, augment, collate, prepare_points, prepare_scene, sample_points, wrap_yaw
+from .model import SASADetector
+
+log = logging.getLogger(__name__)
+
+__all__ = ["train", "infer", "detect_points", "load_model", "resolve_device", "ConfigMismatchError",
+           "evaluate_scenes", "peak_memory_mb"]
+
+CHECKPOINT_FORMAT = "sonardet-sasa"
+CHECKPOINT_VERSION = 1
+
+
+class ConfigMismatchError(ValueError):
+    """A checkpoint or model was made with different settings (the message names them)."""
+
+
+def resolve_device(device=None) -> torch.device:
+    """``device`` if given (str or torch.device), else cuda when available, else cpu."""
+    if device is None or device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
+
+
+def peak_memory_mb(device: torch.device | None = None) -> dict:
+    """Peak resident memory of this process (MB, ``ru_maxrss``) and, on CUDA, peak allocated GPU memory."""
+    out = {"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    if device is not None and device.type == "cuda":
+        out["peak_cuda_mb"] = torch.cuda.max_memory_allocated(device) / 2**20
+    return out
+
+
+def _set_threads(params: dict) -> None:
+    if params.get("num_threads"):
+        torch.set_num_threads(int(params["num_threads"]))
+
+
+def _rng(seed: int, *keys) -> np.random.Generator:
+    return np.random.default_rng(derive_seed(seed, "sasa", *keys))
+
+
+def _make_batch(scenes: list[PreparedScene], params: dict, rng: np.random.Generator, device, train_aug: bool):
+    items = []
+    for s in scenes:
+        idx = sample_points(len(s.xyz), int(params["n_points"]), rng, s.scene_id)
+        xyz, h, lab = s.xyz[idx], s.height[idx], s.label[idx]
+        boxes = s.boxes
+        if train_aug:
+            xyz, h, boxes = augment(xyz, h, lab, boxes, s.cls, s.obj_id, params, rng, s.axis)
+        items.append((xyz, h, boxes, s.cls))
+    return collate(items, device)
+
+
+def _checkpoint_settings(params: dict, train_ids: list[str]) -> dict:
+    s = model_settings(params)
+    s["train_scenes"] = list(train_ids)
+    return s
+
+
+def _save(obj, path: Path) -> None:
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
+
+
+def _load(path: Path, device) -> dict:
+    obj = torch.load(path, map_location=device, weights_only=False)
+    if not isinstance(obj, dict) or obj.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: not a sonardet SASA checkpoint/model (format {obj.get('format')!r})")
+    if obj.get("version") != CHECKPOINT_VERSION:
+        raise ValueError(f"{path}: checkpoint version {obj.get('version')!r}; this sonardet reads version "
+                         f"{CHECKPOINT_VERSION}. Retrain the model.")
+    return obj
+
+
+def _csv_text(rows: list[dict]) -> str:
+    if not rows:
+        return ""
+    keys = list(rows[0])
+    for r in rows[1:]:
+        keys += [k for k in r if k not in keys]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=keys, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in keys})
+    return buf.getvalue()
+
+
+def _symmetry(params: dict):
+    orders = params["symmetry_orders"]
+    sym = [c for c in params["classes"] if int(orders[c]) == 0]
+    periods = {c: 2 * math.pi / int(orders[c]) for c in params["classes"] if int(orders[c]) > 0}
+    return sym, periods
+
+
+def evaluate_scenes(dets: dict, scene_paths, params: dict, dist_thresholds_m=(0.5, 1.0, 2.0, 4.0),
+                    headline_m: float = 0.5) -> dict:
+    """nuScenes-style metrics (sonardet.eval.evaluate) of ``dets`` against the scenes' JSON labels."""
+    from ...eval.evaluate import evaluate, metrics_for_json
+    from ...io.annotations import read_scene
+    from .data import scene_paths as _paths
+
+    gt = {}
+    for p in scene_paths:
+        doc = read_scene(_paths(p)[1], classes=None)
+        gt[doc["scene"]] = [o for o in doc["objects"] if o["cls"] in params["classes"]]
+    sym, periods = _symmetry(params)
+    res = evaluate(gt, {k: v for k, v in dets.items() if k in gt}, params["classes"], list(dist_thresholds_m),
+                   headline_m, symmetric_classes=sym, yaw_periods_rad=periods)
+    return metrics_for_json(res)
+
+
+def _to_detections(pred: dict, origin: np.ndarray, classes: list[str]) -> list[dict]:
+    boxes = pred["boxes"].detach().cpu().double().numpy()
+    scores = pred["scores"].detach().cpu().double().numpy()
+    labels = pred["labels"].detach().cpu().numpy()
+    cs = pred["class_scores"].detach().cpu().double().numpy()
+    out = []
+    for b, s, lab, c in zip(boxes, scores, labels, cs):
+        box = b.copy()
+        box[:3] += origin
+        box[6] = float(wrap_yaw(box[6]))
+        out.append({"cls": classes[int(lab)], "box": [float(v) for v in box], "score": float(s),
+                    "extras": {"class_scores": {k: float(v) for k, v in zip(classes, c)}}})
+    return out
+
+
+@torch.no_grad()
+def _detect_prepared(model: SASADetector, scene: PreparedScene, params: dict, device) -> list[dict]:
+    model.eval()
+    rng = _rng(int(params["seed"]), "infer", scene.scene_id)
+    batch = _make_batch([scene], params, rng, device, train_aug=False)
+    out = model(batch)
+    pred = model.predict(out, params["score_thresh"], params["nms_mode"], params["nms_iou"], params["nms_pre_max"],
+                         params["nms_post_max"])[0]
+    return _to_detections(pred, scene.origin, list(params["classes"]))
+
+
+def load_model(model_path, params: dict | None = None, device=None) -> tuple[SASADetector, dict]:
+    """Load ``model.pt``. ``params`` (partial or complete) may set inference and runtime keys (score
+    threshold, NMS, threads); training-only keys (epochs, LR, augmentation, ...) are ignored; a
+    network or input key that it sets to another value than the model's raises
+    :class:`ConfigMismatchError` naming it. Returns (model in eval mode, effective params)."""
+    device = resolve_device(device)
+    obj = _load(Path(model_path), device)
+    stored = obj["params"]
+    eff = resolve_params(stored)
+    if params:
+        given = dict(params)
+        cur = resolve_params(given)
+        asked = {k for k in given if k in ARCHITECTURE_KEYS}  # only keys the caller set are compared
+        diff = describe_difference({k: v for k, v in architecture_settings(stored).items() if k in asked},
+                                   {k: v for k, v in architecture_settings(cur).items() if k in asked})
+        if diff:
+            raise ConfigMismatchError(f"{model_path}: the model was trained with other settings ({diff}); "
+                                      "retrain it with this config or use the config it was trained with")
+        for k in INFERENCE_KEYS | RUNTIME_KEYS:
+            if k in given:
+                eff[k] = cur[k]
+    model = SASADetector(eff).to(device)
+    model.load_state_dict(obj["state_dict"])
+    model.eval()
+    return model, eff
+
+
+def infer(model_path, scene_npz_paths, params: dict | None = None, device=None, progress: bool | None = None) -> dict:
+    """Detect objects in scene files with a trained model.
+
+    Args:
+        model_path: ``model.pt`` written by :func:`train`.
+        scene_npz_paths: scene ``.npz`` files (labels are not needed).
+        params: optional parameters; only inference/runtime keys may differ from the model's.
+        device: None = cuda if available else cpu.
+    Returns:
+        {scene_id: [{"cls", "box" [x, y, z, l, w, h, yaw] (scene frame, m, rad), "score", "extras"}]},
+        sorted by descending score. Timing: ``infer.last_timing`` holds seconds per scene.
+    """
+    device = resolve_device(device)
+    model, eff = load_model(model_path, params, device)
+    _set_threads(eff)
+    show = eff["progress"] if progress is None else progress
+    out, times = {}, []
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover - tqdm is a dependency
+        tqdm = None
+    it = list(scene_npz_paths)
+    bar = tqdm(it, desc="sasa infer", disable=not show) if tqdm else it
+    for p in bar:
+        t0 = time.perf_counter()
+        scene = prepare_scene(p, eff, with_labels=False)
+        out[scene.scene_id] = _detect_prepared(model, scene, eff, device)
+        times.append(time.perf_counter() - t0)
+    infer.last_timing = {"n_scenes": len(times), "s_per_scene": float(np.mean(times)) if times else None,
+                         "device": str(device), **peak_memory_mb(device)}
+    return out
+
+
+infer.last_timing = {}
+
+
+def detect_points(model_path, xyz: np.ndarray, params: dict | None = None, device=None, scene_id: str = "points"):
+    """Detect objects in an in-memory cloud ``xyz`` (N, 3) float64 (any frame, m, z up).
+
+    Returns the detections in the frame of ``xyz`` (see :func:`infer`).
+    """
+    device = resolve_device(device)
+    model, eff = load_model(model_path, params, device)
+    keep, local, height, origin = prepare_points(xyz, eff)
+    scene = PreparedScene(scene_id, local, height, np.full(len(local), -1, np.int64), np.zeros((0, 7), np.float32),
+                          np.zeros(0, np.int64), np.zeros(0, np.int64), origin, len(xyz))
+    return _detect_prepared(model, scene, eff, device)
+
+
+def _state(obj) -> dict:
+    return obj.state_dict() if obj is not None else None
+
+
+def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, device=None, resume: bool = True) -> dict:
+    """Train a SASA detector.
+
+    Args:
+        train_scene_paths: scene files (``.npz``; the ``.json`` labels beside them are read).
+        val_scene_paths: scenes for the validation mAP (may be empty).
+        params: parameters (see config.py ``DEFAULTS``; missing keys take the defaults).
+        out_dir: output folder; gets ``model.pt``, ``loss.csv``, ``train.json`` and ``checkpoint.pt``.
+        device: None = cuda if available else cpu.
+        resume: continue from ``out_dir/checkpoint.pt`` if present (refused, with the differing setting
+            named, if it was made with other settings or another training set); False starts afresh.
+    Returns:
+        the summary written to ``train.json`` (times in s, memory in MB, validation metrics).
+    """
+    params = resolve_params(params)
+    device = resolve_device(device)
+    _set_threads(params)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    seed = int(params["seed"])
+    train_paths = sorted(str(p) for p in train_scene_paths)
+    val_paths = sorted(str(p) for p in val_scene_paths or [])
+    if not train_paths:
+        raise ValueError("train: no training scenes given")
+    train_ids = [Path(p).stem for p in train_paths]
+    settings = _checkpoint_settings(params, train_ids)
+    ckpt_path = out_dir / "checkpoint.pt"
+
+    ckpt = None
+    if resume and ckpt_path.exists():
+        ckpt = _load(ckpt_path, "cpu")
+        diff = describe_difference(ckpt["settings"], settings)
+        if diff:
+            raise ConfigMismatchError(f"{ckpt_path}: refusing to resume, the checkpoint was made with other "
+                                      f"settings ({diff}); delete it (or pass resume=False) to start afresh")
+
+    t_prep = time.perf_counter()
+    scenes = [prepare_scene(p, params) for p in train_paths]
+    val_scenes = [prepare_scene(p, params) for p in val_paths]
+    prep_s = time.perf_counter() - t_prep
+    n_kept = [len(s.xyz) for s in scenes]
+    short = [s.scene_id for s in scenes if len(s.xyz) < int(params["n_points"])]
+    if short:
+        warnings.warn(f"{len(short)} training scene(s) have fewer kept points than n_points="
+                      f"{params['n_points']} and will be padded: {', '.join(short[:5])}", stacklevel=2)
+
+    torch.manual_seed(seed)
+    model = SASADetector(params).to(device)
+    bs = int(params["batch_size"])
+    steps_per_epoch = math.ceil(len(scenes) / bs)
+    epochs = int(params["epochs"])
+    total_steps = steps_per_epoch * epochs
+    opt = torch.optim.AdamW(model.parameters(), lr=float(params["lr"]) / float(params["div_factor"]),
+                            betas=(float(params["moms"][0]), 0.99), weight_decay=float(params["weight_decay"]))
+    sched = torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=float(params["lr"]), total_steps=total_steps, pct_start=float(params["pct_start"]),
+        anneal_strategy="cos", cycle_momentum=True, base_momentum=float(params["moms"][1]),
+        max_momentum=float(params["moms"][0]), div_factor=float(params["div_factor"]),
+        final_div_factor=float(params["final_div_factor"]))
+    start_epoch, history, train_s, steps_done = 0, [], 0.0, 0
+    if ckpt is not None:
+        model.load_state_dict(ckpt["state_dict"])
+        opt.load_state_dict(ckpt["optimizer"])
+        sched.load_state_dict(ckpt["scheduler"])
+        start_epoch, history = int(ckpt["epoch"]), list(ckpt["history"])
+        train_s, steps_done = float(ckpt["train_s"]), int(ckpt["steps"])
+        log.info("resuming %s at epoch %d/%d", ckpt_path, start_epoch, epochs)
+
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover
+        tqdm = None
+    bar = tqdm(total=total_steps, initial=start_epoch * steps_per_epoch, desc=f"sasa train ({len(scenes)} scenes)",
+               disable=not params["progress"]) if tqdm else None
+    val_every = int(params.get("val_every_epochs") or 0)
+    for epoch in range(start_epoch, epochs):
+        model.train()
+        t_ep = time.perf_counter()
+        order = _rng(seed, "order", epoch).permutation(len(scenes))
+        sums: dict[str, float] = {}
+        for step in range(steps_per_epoch):
+            sel = [scenes[i] for i in order[step * bs:(step + 1) * bs]]
+            rng = _rng(seed, "step", epoch, step)
+            batch = _make_batch(sel, params, rng, device, train_aug=True)
+            out = model(batch)
+            loss, parts = model.loss(out, batch)
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"non-finite training loss at epoch {epoch}, step {step}: {parts}")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), float(params["grad_clip"]))
+            opt.step()
+            sched.step()
+            steps_done += 1
+            for k, v in parts.items():
+                sums[k] = sums.get(k, 0.0) + float(v)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(epoch=epoch + 1, loss=f"{parts['loss']:.3f}")
+        ep_s = time.perf_counter() - t_ep
+        train_s += ep_s
+        row = {"epoch": epoch + 1, **{k: v / steps_per_epoch for k, v in sums.items()},
+               "lr": sched.get_last_lr()[0], "epoch_s": ep_s}
+        if val_every and val_scenes and ((epoch + 1) % val_every == 0) and epoch + 1 < epochs:
+            dets = {s.scene_id: _detect_prepared(model, s, params, device) for s in val_scenes}
+            row["val_mAP"] = evaluate_scenes(dets, val_paths, params)["mAP_headline"]
+        history.append(row)
+        atomic_write_text(out_dir / "loss.csv", _csv_text(history))
+        _save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "settings": settings, "params": params,
+               "state_dict": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+               "epoch": epoch + 1, "history": history, "train_s": train_s, "steps": steps_done}, ckpt_path)
+    if bar is not None:
+        bar.close()
+
+    val = None
+    val_s = None
+    if val_scenes:
+        t0 = time.perf_counter()
+        dets = {s.scene_id: _detect_prepared(model, s, params, device) for s in val_scenes}
+        val_s = (time.perf_counter() - t0) / len(val_scenes)
+        m = evaluate_scenes(dets, val_paths, params)
+        val = {"mAP_headline": m["mAP_headline"], "mAP": m["mAP"],
+               "AP_headline": {c: m["per_class"][c]["AP"][repr(0.5)] for c in params["classes"]}}
+        if history:
+            history[-1]["val_mAP"] = m["mAP_headline"]
+            atomic_write_text(out_dir / "loss.csv", _csv_text(history))
+    summary = {
+        "schema_version": SCHEMA_VERSION,
+        "method": "sasa",
+        "device": str(device),
+        "torch_threads": torch.get_num_threads(),
+        "n_train_scenes": len(scenes),
+        "n_val_scenes": len(val_scenes),
+        "train_scenes": train_ids,
+        "epochs": epochs,
+        "batch_size": bs,
+        "steps": steps_done,
+        "train_time_s": train_s,
+        "s_per_step": train_s / max(steps_done, 1),
+        "prepare_time_s": prep_s,
+        "kept_points_per_scene": {"min": int(min(n_kept)), "median": float(np.median(n_kept)), "max": int(max(n_kept))},
+        "val_infer_s_per_scene": val_s,
+        "val": val,
+        "final_loss": history[-1] if history else None,
+        **peak_memory_mb(device),
+        "params": params,
+    }
+    _save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "settings": settings, "params": params,
+           "state_dict": model.state_dict(), "classes": list(params["classes"]), "summary": summary},
+          out_dir / "model.pt")
+    atomic_write_text(out_dir / "train.json", json.dumps(summary, indent=1, default=float) + "\n")
+    return summary

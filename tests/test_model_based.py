@@ -1,0 +1,249 @@
+"""Model-based detector: small synthetic scans built with the project's own sonar model.
+
+Hard cases named in the tests: an object alone, a steep (10 deg) bare seabed, two touching objects,
+degenerate ICP input (3 points, collinear, planar, a window of only seabed), UTM offsets, empty and
+NaN input, a class without templates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sonardet.config import validate_config
+from sonardet.detect.model_based import DEFAULTS, PAPER, detect, resolve_params
+from sonardet.detect.model_based.proposals import sliding_windows, window_counts
+from sonardet.detect.model_based.registration import icp_point_to_point, icp_scene_to_model, SurfaceTarget
+from sonardet.geometry import quat_from_yaw, quat_to_matrix
+from sonardet.objects import ObjectInfo, build_object, canonical_box
+from sonardet.sim.mbes import RaycastTarget, SensorConfig, scan, straight_line
+from sonardet.sim.templates import scan_templates
+
+CLASSES = ["reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s"]
+SEABED_Z = -11.5
+TEMPLATE_CFG = {"yaw_deg": [0, 60], "directions": ["x", "y"], "offsets_m": [-7.5, 0.0, 7.5], "altitude_m": 11.5}
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return validate_config({})
+
+
+@pytest.fixture(scope="module")
+def objects(cfg):
+    """ObjectInfo of the four default classes, built from the validated default config."""
+    out = {}
+    for cls in CLASSES:
+        m = build_object(cls, cfg["objects"])
+        out[cls] = ObjectInfo(cls=cls, mesh=m.mesh, convex_parts=m.convex_parts,
+                              mass_kg=float(m.mesh.volume) * cfg["objects"]["density_kg_m3"],
+                              volume_m3=float(m.mesh.volume), symmetry_order=m.symmetry_order,
+                              extents_m=np.asarray(m.mesh.extents))
+    return out
+
+
+@pytest.fixture(scope="module")
+def sensor(cfg):
+    return SensorConfig.from_dict(cfg["sensor"])
+
+
+@pytest.fixture(scope="module")
+def templates(objects, sensor):
+    """Template scans (a reduced set of views, to keep the tests fast) of every class."""
+    return {c: scan_templates(c, o.mesh.vertices, o.mesh.faces, o.symmetry_order, TEMPLATE_CFG, sensor,
+                              np.random.default_rng(1)) for c, o in objects.items()}
+
+
+def seabed_mesh(extent_m: float, slope_deg: float = 0.0):
+    """A plane z = SEABED_Z + tan(slope) x over [-2, extent+2]^2 (vertices, faces)."""
+    lo, hi = -2.0, extent_m + 2.0
+    xy = np.array([[lo, lo], [hi, lo], [hi, hi], [lo, hi]])
+    z = SEABED_Z + np.tan(np.deg2rad(slope_deg)) * xy[:, 0]
+    return np.c_[xy, z], np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def place(obj, x, y, yaw_rad):
+    """Pose (t, q) of an upright object resting on the flat seabed at (x, y) with the given yaw."""
+    q = quat_from_yaw(yaw_rad)
+    zmin = (np.asarray(obj.mesh.vertices) @ quat_to_matrix(q).T)[:, 2].min()
+    return np.array([x, y, SEABED_Z - zmin]), q
+
+
+def survey(placed, sensor, extent_m=14.0, slope_deg=0.0, seed=0, track_y=None):
+    """Points (N,3) of one survey line along x over a seabed with the posed objects [(obj, t, q)]."""
+    meshes = [seabed_mesh(extent_m, slope_deg)]
+    for obj, t, q in placed:
+        meshes.append((np.asarray(obj.mesh.vertices) @ quat_to_matrix(q).T + t, np.asarray(obj.mesh.faces)))
+    target = RaycastTarget(meshes)
+    ty = 0.5 * extent_m + 4.0 if track_y is None else track_y
+    traj = straight_line((-1.0, ty), (extent_m + 1.0, ty), 0.0, sensor, -SEABED_Z)
+    xyz = scan(target, traj, sensor, np.random.default_rng(seed)).xyz
+    keep = (xyz[:, 0] >= 0) & (xyz[:, 0] <= extent_m) & (xyz[:, 1] >= 0) & (xyz[:, 1] <= extent_m)
+    return xyz[keep]
+
+
+def accepted(dets):
+    return [d for d in dets if d["extras"]["accepted"]]
+
+
+@pytest.mark.parametrize("variant", ["ours", "paper"])
+@pytest.mark.parametrize("cls,yaw", [("reef_cone", 0.3), ("tetrapod_s", 0.7), ("reef_ring", 0.0), ("tetrapod_b", 1.9)])
+def test_object_alone_on_flat_seabed_is_found(objects, templates, sensor, variant, cls, yaw):
+    obj = objects[cls]
+    t, q = place(obj, 7.0, 6.5, yaw)
+    xyz = survey([(obj, t, q)], sensor)
+    dets, stats = detect(xyz, templates, objects, variant=variant)
+    assert dets, f"{variant}: nothing found"
+    best = dets[0]
+    truth = canonical_box(obj.mesh.vertices, t, q, obj.symmetry_order)
+    assert best["cls"] == cls
+    assert np.linalg.norm(np.asarray(best["box"][:3]) - truth[:3]) < 0.1
+    # Every output is finite and the stats account for the work done.
+    assert all(np.all(np.isfinite(d["box"])) and np.isfinite(d["score"]) for d in dets)
+    assert stats["icp_runs"] > 0 and stats["windows"] >= stats["windows_skipped"]
+    assert stats["seconds"]["total"] > 0
+
+
+@pytest.mark.parametrize("variant", ["ours", "paper"])
+def test_sloped_bare_seabed_gives_no_detection(objects, templates, sensor, variant):
+    xyz = survey([], sensor, slope_deg=10.0)
+    dets, stats = detect(xyz, templates, objects, variant=variant)
+    assert dets == []
+    assert stats["n_candidate_points"] < 0.01 * stats["n_points"]
+
+
+def test_flat_bare_seabed_window_gives_no_detection(objects, templates, sensor):
+    """A window of only seabed (the paper variant registers every window when skipping is off)."""
+    xyz = survey([], sensor, extent_m=8.0)
+    dets, stats = detect(xyz, templates, objects, {"skip_empty_windows": False, "ground_min_height_m": -1.0},
+                         variant="paper")
+    assert dets == []
+    assert stats["windows_skipped"] == 0 and stats["icp_runs"] > 0
+    dets, _ = detect(xyz, templates, objects, variant="ours")
+    assert dets == []
+
+
+def test_two_touching_objects_give_two_detections(objects, templates, sensor):
+    cone = objects["reef_cone"]
+    t1, q1 = place(cone, 6.0, 6.0, 0.0)
+    t2, q2 = place(cone, 6.0 + 2.02, 6.3, 0.4)  # bases 2 cm apart
+    xyz = survey([(cone, t1, q1), (cone, t2, q2)], sensor)
+    dets = accepted(detect(xyz, templates, objects)[0])
+    cones = [d for d in dets if d["cls"] == "reef_cone"]
+    assert len(cones) == 2
+    for t, q in ((t1, q1), (t2, q2)):
+        truth = canonical_box(cone.mesh.vertices, t, q, 0)
+        assert min(np.hypot(*(np.asarray(d["box"][:2]) - truth[:2])) for d in cones) < 0.15
+    # Nothing else is claimed there.
+    assert len(dets) == 2
+
+
+def test_two_touching_tetrapods_give_two_detections(objects, templates, sensor):
+    tet = objects["tetrapod_s"]
+    t1, q1 = place(tet, 6.0, 6.0, 0.2)
+    t2, q2 = place(tet, 7.55, 6.6, 1.3)
+    xyz = survey([(tet, t1, q1), (tet, t2, q2)], sensor)
+    dets = [d for d in accepted(detect(xyz, templates, objects)[0]) if d["cls"] == "tetrapod_s"]
+    assert len(dets) == 2
+    for t, q in ((t1, q1), (t2, q2)):
+        truth = canonical_box(tet.mesh.vertices, t, q, 3)
+        assert min(np.hypot(*(np.asarray(d["box"][:2]) - truth[:2])) for d in dets) < 0.2
+
+
+def test_icp_degenerate_input_returns_none(objects):
+    obj = objects["reef_cone"]
+    v = np.asarray(obj.mesh.vertices)
+    tgt = SurfaceTarget(v, np.tile([0.0, 0.0, 1.0], (len(v), 1)))
+    stages = DEFAULTS["icp_stages"]
+    three = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    line = np.c_[np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)]
+    for pts in (three, line, np.zeros((0, 3)), np.full((30, 3), np.nan)):
+        assert icp_scene_to_model(pts, tgt, np.eye(3), np.zeros(3), stages) is None
+        assert icp_point_to_point(v[:100], pts, 0.3, 30) is None
+        assert icp_point_to_point(pts, v[:100], 0.3, 30) is None
+
+
+def test_planar_patch_gives_no_detection(objects, templates):
+    """A flat 1.5 m x 1.5 m table 0.5 m above a flat seabed: planar input registers to nothing."""
+    rng = np.random.default_rng(0)
+    g = np.mgrid[0:10:0.08, 0:10:0.08].reshape(2, -1).T
+    seabed = np.c_[g, SEABED_Z + rng.normal(0, 0.01, len(g))]
+    p = np.mgrid[4:5.5:0.04, 4:5.5:0.04].reshape(2, -1).T
+    table = np.c_[p, SEABED_Z + 0.5 + rng.normal(0, 0.005, len(p))]
+    xyz = np.vstack([seabed, table])
+    for variant in ("ours", "paper"):
+        dets, _ = detect(xyz, templates, objects, variant=variant)
+        assert accepted(dets) == [], variant
+        assert all(np.isfinite(d["score"]) for d in dets)
+
+
+@pytest.mark.parametrize("variant", ["ours", "paper"])
+def test_utm_offset_gives_the_same_detections(objects, templates, sensor, variant):
+    tet = objects["tetrapod_s"]
+    cone = objects["reef_cone"]
+    placed = [(tet, *place(tet, 4.0, 5.0, 0.5)), (cone, *place(cone, 9.5, 8.0, 0.0))]
+    xyz = survey(placed, sensor)
+    offset = np.array([5.0e5, 4.0e6, 0.0])
+    local, st_local = detect(xyz, templates, objects, variant=variant)
+    utm, st_utm = detect(xyz + offset, templates, objects, variant=variant)
+    assert len(local) == len(utm) > 0
+    assert st_utm["origin"][:2] == [5.0e5, 4.0e6]
+    for a, b in zip(local, utm):
+        assert a["cls"] == b["cls"]
+        assert np.allclose(np.asarray(b["box"][:3]) - offset, a["box"][:3], atol=1e-6)
+        assert np.allclose(b["box"][3:], a["box"][3:], atol=1e-6)
+        assert np.allclose(np.asarray(b["pose"]["t"]) - offset, a["pose"]["t"], atol=1e-6)
+        assert abs(a["score"] - b["score"]) < 1e-6
+
+
+def test_deterministic(objects, templates, sensor):
+    tet = objects["tetrapod_b"]
+    xyz = survey([(tet, *place(tet, 6.0, 6.0, 1.0))], sensor)
+    a, _ = detect(xyz, templates, objects)
+    b, _ = detect(xyz, templates, objects)
+    assert a == b
+
+
+def test_empty_nan_and_bad_input(objects, templates):
+    with pytest.warns(UserWarning, match="nothing to detect"):
+        dets, stats = detect(np.zeros((0, 3)), templates, objects)
+    assert dets == [] and stats["n_points"] == 0
+    bad = np.zeros((10, 3))
+    bad[3, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN/Inf"):
+        detect(bad, templates, objects)
+    bad[3, 1] = np.inf
+    with pytest.raises(ValueError, match="NaN/Inf"):
+        detect(bad, templates, objects, variant="paper")
+    with pytest.raises(ValueError, match=r"\(N,3\)"):
+        detect(np.zeros((10, 2)), templates, objects)
+    with pytest.raises(ValueError, match="variant"):
+        detect(np.zeros((10, 3)), templates, objects, variant="best")
+    with pytest.raises(ValueError, match="unknown model-based detector parameter"):
+        detect(np.zeros((10, 3)), templates, objects, {"voxel": 0.1})
+
+
+def test_missing_template_class_is_a_clear_error(objects, templates):
+    partial = {c: t for c, t in templates.items() if c != "reef_ring"}
+    with pytest.raises(ValueError, match="no template scans for class 'reef_ring'"):
+        detect(np.zeros((10, 3)), partial, objects)
+
+
+def test_params_defaults_and_overrides():
+    p = resolve_params({"window_overlap": 0.25}, "paper")
+    assert p["window_overlap"] == 0.25 and p["ground_method"] == "ransac"
+    assert resolve_params(None, "ours") == DEFAULTS and resolve_params({}, "paper") == PAPER
+    with pytest.raises(ValueError):
+        resolve_params({"window_overlap": 1.0}, "paper")
+
+
+def test_windows_cover_the_area_and_count_points():
+    wins = sliding_windows((0.0, 0.0), (10.0, 6.0), 2.0, 0.5)
+    assert np.isclose(wins[:, 2].max(), 10.0) and np.isclose(wins[:, 3].max(), 6.0)
+    assert np.allclose(wins[:, 2] - wins[:, 0], 2.0)
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 10, (2000, 2)) * [1.0, 0.6]
+    counts = window_counts(xy, wins)
+    exact = [int(np.sum((xy[:, 0] >= w[0]) & (xy[:, 0] < w[2]) & (xy[:, 1] >= w[1]) & (xy[:, 1] < w[3])))
+             for w in wins]
+    assert np.all(np.abs(counts - exact) <= 0.05 * np.maximum(exact, 20))
