@@ -11,6 +11,8 @@ configfile: "config/config.yaml"
 include: "rules/common.smk"
 include: "rules/objects.smk"
 include: "rules/scenes.smk"
+include: "rules/model_based.smk"
+include: "rules/sasa.smk"
 include: "rules/evaluate.smk"
 
 

@@ -89,7 +89,7 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
 
     from sonardet.detect.sasa import DEFAULTS, PAPER, SASADetector, resolve_params
     from sonardet.detect.sasa.data import prepare_scene
-    from sonardet.detect.sasa.train import _detect_prepared, _make_batch, peak_memory_mb, resolve_device
+    from sonardet.detect.sasa.trainer import _detect_prepared, _make_batch, peak_memory_mb, resolve_device
 
     torch.set_num_threads(threads)
     base = {"DEFAULTS": DEFAULTS, "PAPER": PAPER}[name]

@@ -5,7 +5,7 @@ import sys
 from snakemake.exceptions import WorkflowError
 
 # The library lives in src/; importable here even when the package is not installed. Each job's
-# script does the same through workflow_scripts/_bootstrap.py (e.g. in a rule's conda env).
+# script inserts the same path itself (e.g. in a rule's conda env).
 sys.path.insert(0, os.path.join(workflow.basedir, "src"))
 
 from sonardet.config import ConfigError, validate_config
@@ -30,13 +30,23 @@ SPLIT = make_splits(
     config["split"]["fractions"],
     config["seed"],
 )
-#: Evaluation datasets: name -> scene ids.
+#: Evaluation datasets: name -> scene ids, and the folder holding their scene files.
 DATASETS = {"synthetic": SPLIT["test"]}
+DATASET_DIRS = {"synthetic": "results/scenes"}
+FRACTIONS = [int(f) for f in config["split"]["fractions"]]
+#: Methods: model_based_{variant} and sasa_{fraction}.
+METHODS = [f"model_based_{v}" for v in config["model_based"]["variants"]] + (
+    [f"sasa_{f}" for f in FRACTIONS] if config["sasa"]["enabled"] else []
+)
 
 
 wildcard_constraints:
     cls="|".join(CLASSES),
     scene=r"s\d{4}",
+    dataset="|".join(DATASETS),
+    variant="paper|ours",
+    fraction=r"\d+",
+    method=r"model_based_(paper|ours)|sasa_\d+",
 
 
 def object_files(ext):
@@ -56,7 +66,29 @@ def scene_files(ext):
 
 def dataset_scene_files(dataset, ext):
     """Scene files of an evaluation dataset."""
-    return expand("results/scenes/{scene}.{ext}", scene=DATASETS[dataset], ext=ext)
+    return expand(
+        "{dir}/{scene}.{ext}",
+        dir=DATASET_DIRS[dataset],
+        scene=DATASETS[dataset],
+        ext=ext,
+    )
+
+
+def dataset_scene_file(dataset, scene, ext):
+    """One scene file of an evaluation dataset."""
+    return f"{DATASET_DIRS[dataset]}/{scene}.{ext}"
+
+
+def split_scene_files(name, ext):
+    """Scene files of a split (train, val, test, train_{fraction})."""
+    return expand("results/scenes/{scene}.{ext}", scene=SPLIT[name], ext=ext)
+
+
+def eval_files():
+    """metrics.json of every method on every evaluation dataset."""
+    return expand(
+        "results/eval/{method}/{dataset}/metrics.json", method=METHODS, dataset=DATASETS
+    )
 
 
 def detection_files(method, dataset):
@@ -77,4 +109,5 @@ def final_outputs():
         + template_files()
         + scene_files("npz")
         + ["results/tables/dataset_stats.csv"]
+        + eval_files()
     )

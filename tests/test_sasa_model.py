@@ -19,7 +19,7 @@ from sonardet.detect.sasa import ConfigMismatchError, SASADetector, detect_point
 from sonardet.detect.sasa.box_coder import PointBinResidualCoder
 from sonardet.detect.sasa.data import PaddingWarning, augment, collate, prepare_scene, sample_points
 from sonardet.detect.sasa.losses import box_corners
-from sonardet.detect.sasa.train import _make_batch, evaluate_scenes
+from sonardet.detect.sasa.trainer import _make_batch, evaluate_scenes
 from sonardet.geometry import box_corners as np_box_corners
 from sonardet.geometry import points_in_box
 
@@ -232,7 +232,7 @@ def test_resume_continues_identically(tmp_path, monkeypatch):
     """An interrupted run resumed from its checkpoint ends with the same weights as an uninterrupted one."""
     import importlib
 
-    tr = importlib.import_module("sonardet.detect.sasa.train")  # the module (the package exports train())
+    tr = importlib.import_module("sonardet.detect.sasa.trainer")  # the module (the package exports train())
 
     paths = [make_scene(tmp_path, f"r{i}", i, ["reef_cone", "tetrapod_b"]) for i in range(2)]
     params = {**TINY, "epochs": 2, "batch_size": 2}

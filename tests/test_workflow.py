@@ -51,6 +51,84 @@ def test_templates_well_formed(smoke_run):
         assert tv.scan_params["sensor"]["n_beams"] == 128  # from the smoke config
 
 
+METHODS = ["model_based_paper", "model_based_ours", "sasa_25", "sasa_50", "sasa_100"]
+
+
+def _test_scenes(work):
+    return (work / "results/splits/test.txt").read_text().split()
+
+
+def test_scenes_and_dataset_table(smoke_run):
+    ids = sorted(p.stem for p in (smoke_run / "results/scenes").glob("*.npz"))
+    assert ids == ["s0000", "s0001", "s0002", "s0003"]
+    stats = (smoke_run / "results/tables/dataset_stats.csv").read_text().splitlines()
+    assert stats[0].startswith("split") and len(stats) == 4  # header + train, test, all
+
+
+def test_detections_of_every_method(smoke_run):
+    from sonardet.io.annotations import read_detections
+
+    test = _test_scenes(smoke_run)
+    assert len(test) == 1
+    for method in METHODS:
+        for sid in test:
+            doc = read_detections(smoke_run / f"results/detections/{method}/synthetic/{sid}.json", CLASSES)
+            assert doc["method"] == method and doc["scene"] == sid
+    for variant in ("paper", "ours"):
+        st = json.loads((smoke_run / f"results/stats/model_based_{variant}/synthetic/{test[0]}.json").read_text())
+        assert st["variant"] == variant and st["n_points"] > 1000 and st["seconds"]["total"] > 0
+
+
+def test_sasa_training_outputs(smoke_run):
+    for f in (25, 50, 100):
+        run = smoke_run / f"results/models/sasa_{f}"
+        summary = json.loads((run / "train.json").read_text())
+        assert summary["epochs"] == 1 and summary["steps"] >= 1 and summary["s_per_step"] > 0
+        rows = (run / "loss.csv").read_text().splitlines()
+        assert rows[0].startswith("epoch") and len(rows) == 2
+    n = [json.loads((smoke_run / f"results/models/sasa_{f}/train.json").read_text())["n_train_scenes"]
+         for f in (25, 50, 100)]
+    assert n[0] <= n[1] <= n[2] == 3  # nested fractions of the 3 training scenes
+
+
+def test_metrics_of_every_method(smoke_run):
+    for method in METHODS:
+        m = json.loads((smoke_run / f"results/eval/{method}/synthetic/metrics.json").read_text())
+        assert 0.0 <= m["mAP_headline"] <= 1.0 + 1e-9  # the devkit's normalisation rounds, as ours
+        assert sum(m["per_class"][c]["n_gt"] for c in CLASSES) >= 5
+    # The model-based detector needs no training: it must find the smoke scene's objects.
+    ours = json.loads((smoke_run / "results/eval/model_based_ours/synthetic/metrics.json").read_text())
+    assert ours["mAP_headline"] >= 0.6, ours["mAP_headline"]
+
+
+def test_threshold_change_reruns_only_its_jobs(smoke_run):
+    cfg = (smoke_run / "config_smoke.yaml").read_text().replace(
+        "ours: {proposal_max_rounds_n: 2}", "ours: {proposal_max_rounds_n: 2, accept_min: 0.4}")
+    assert "accept_min" in cfg
+    (smoke_run / "config_changed.yaml").write_text(cfg)
+    proc = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--configfile", "config_changed.yaml"],
+                          cwd=smoke_run, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    jobs = _job_counts(proc.stdout + proc.stderr)
+    assert jobs == {"detect_model_based": 1, "evaluate": 1, "all": 1}, jobs
+
+
+def _job_counts(text: str) -> dict:
+    """The job-count table of a Snakemake dry run, as {rule: count} (without the total)."""
+    out, inside = {}, False
+    for line in text.splitlines():
+        parts = line.split()
+        if parts[:2] == ["job", "count"]:
+            inside = True
+            continue
+        if inside:
+            if not parts or parts[0] == "total":
+                break
+            if len(parts) == 2 and parts[1].isdigit():
+                out[parts[0]] = int(parts[1])
+    return out
+
+
 def test_rerun_is_a_no_op_and_deterministic(smoke_run):
     before = (smoke_run / "results/templates/tetrapod_s.npz").read_bytes()
     proc = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--configfile", "config_smoke.yaml"],

@@ -129,9 +129,32 @@ def _cross_checks(cfg: dict) -> list[str]:
     if ev["headline_m"] not in ev["dist_thresholds_m"]:
         out.append(f"evaluation.headline_m: {ev['headline_m']} is not one of evaluation.dist_thresholds_m "
                    f"{ev['dist_thresholds_m']}")
+    out += _detector_checks(cfg)
     if cfg["split"]["n_test"] >= sc["n_scenes"]:
         out.append(f"split.n_test: {cfg['split']['n_test']} test scenes leave none of the "
                    f"{sc['n_scenes']} scenes (scenes.n_scenes) for training")
+    return out
+
+
+def _detector_checks(cfg: dict) -> list[str]:
+    """Detector hyper-parameter overrides: unknown keys and invalid values, named by their config path."""
+    from sonardet.detect.model_based import params as mb
+    from sonardet.detect.sasa import config as sasa
+
+    out = []
+    for variant in ("paper", "ours"):
+        try:
+            mb.resolve_params(cfg["model_based"][variant], variant)
+        except (ValueError, TypeError) as exc:
+            out.append(f"model_based.{variant}: {exc}")
+    s = cfg["sasa"]
+    for key in ("seed", "classes"):
+        if key in s["params"]:
+            out.append(f"sasa.params.{key}: set by the top-level key `{key}`; remove it here")
+    try:
+        sasa.resolve_params(s["params"], sasa.PAPER if s["preset"] == "paper" else sasa.DEFAULTS)
+    except (ValueError, TypeError) as exc:
+        out.append(f"sasa.params: {exc}")
     return out
 
 

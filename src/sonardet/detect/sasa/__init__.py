@@ -3,13 +3,24 @@
 Layout as OpenPCDet: :mod:`.backbone` (PointNet++ SA layers with D-FPS / S-FPS), :mod:`.head` (3DSSD
 vote head), :mod:`.box_coder` (symmetry-aware bin/residual coder), :mod:`.losses`, :mod:`.model` (the
 detector, post-processing), :mod:`.data` (ground filter, sampling, augmentation), :mod:`.config`
-(``DEFAULTS`` / ``PAPER`` hyper-parameters), :mod:`.train` (``train`` / ``infer``), :mod:`.ops` (point
-operators). Reference: blakechen97/SASA.
+(``DEFAULTS`` / ``PAPER`` hyper-parameters), :mod:`.trainer` (``train`` / ``infer``), :mod:`.ops` (point
+operators). Reference: blakechen97/SASA. The network modules (torch) are imported on first use.
 """
 
 from .config import DEFAULTS, PAPER, resolve_params
-from .model import SASADetector
-from .train import ConfigMismatchError, detect_points, infer, load_model, train
 
 __all__ = ["DEFAULTS", "PAPER", "resolve_params", "SASADetector", "train", "infer", "detect_points", "load_model",
            "ConfigMismatchError"]
+
+_LAZY = {"SASADetector": "model", "train": "trainer", "infer": "trainer", "detect_points": "trainer",
+         "load_model": "trainer", "ConfigMismatchError": "trainer"}
+
+
+def __getattr__(name):
+    # torch is imported on first use, so reading the parameters (config validation) stays cheap.
+    if name in _LAZY:
+        import importlib
+
+        mod = importlib.import_module(f".{_LAZY[name]}", __name__)
+        return getattr(mod, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

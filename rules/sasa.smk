@@ -1,0 +1,58 @@
+# SASA: one training job per training-data fraction, one inference job per fraction and dataset.
+
+
+rule sasa_train:
+    input:
+        train=lambda w: split_scene_files(f"train_{w.fraction}", "npz"),
+        train_labels=lambda w: split_scene_files(f"train_{w.fraction}", "json"),
+        val=split_scene_files("val", "npz"),
+        val_labels=split_scene_files("val", "json"),
+    output:
+        model="results/models/sasa_{fraction}/model.pt",
+        loss="results/models/sasa_{fraction}/loss.csv",
+        summary="results/models/sasa_{fraction}/train.json",
+    log:
+        "results/logs/sasa_train/{fraction}.log",
+    benchmark:
+        "results/benchmarks/sasa_train/{fraction}.tsv"
+    conda:
+        "../environment.yml"
+    threads: config["sasa"]["threads"]
+    resources:
+        mem_mb=6000,
+    params:
+        sasa=config["sasa"],
+        seed=config["seed"],
+        classes=CLASSES,
+    script:
+        "../workflow_scripts/sasa_train.py"
+
+
+# One inference rule per evaluation dataset: a job loads the model once for all of the dataset's scenes.
+for _dataset in DATASETS:
+
+    rule:
+        name:
+            f"sasa_infer_{_dataset}"
+        input:
+            model="results/models/sasa_{fraction}/model.pt",
+            scenes=dataset_scene_files(_dataset, "npz"),
+        output:
+            detections=expand(
+                "results/detections/sasa_{{fraction}}/{dataset}/{scene}.json",
+                dataset=_dataset,
+                scene=DATASETS[_dataset],
+            ),
+            timing=f"results/stats/sasa_{{fraction}}/{_dataset}/inference.json",
+        log:
+            f"results/logs/sasa_infer/{{fraction}}/{_dataset}.log",
+        benchmark:
+            f"results/benchmarks/sasa_infer/{{fraction}}/{_dataset}.tsv"
+        conda:
+            "../environment.yml"
+        threads: config["sasa"]["threads"]
+        params:
+            sasa=config["sasa"],
+            classes=CLASSES,
+        script:
+            "../workflow_scripts/sasa_infer.py"
