@@ -14,6 +14,7 @@ include: "rules/scenes.smk"
 include: "rules/model_based.smk"
 include: "rules/sasa.smk"
 include: "rules/evaluate.smk"
+include: "rules/ablation.smk"
 
 
 rule all:

@@ -38,6 +38,13 @@ FRACTIONS = [int(f) for f in config["split"]["fractions"]]
 METHODS = [f"model_based_{v}" for v in config["model_based"]["variants"]] + (
     [f"sasa_{f}" for f in FRACTIONS] if config["sasa"]["enabled"] else []
 )
+#: Ablation grid points by name, and the test scenes they run on.
+ABLATION = (
+    {p["name"]: p for p in config["ablation"]["points"]}
+    if config["ablation"]["enabled"]
+    else {}
+)
+ABLATION_SCENES = SPLIT["test"][: config["ablation"]["n_scenes"]]
 
 
 wildcard_constraints:
@@ -47,6 +54,7 @@ wildcard_constraints:
     variant="paper|ours",
     fraction=r"\d+",
     method=r"model_based_(paper|ours)|sasa_\d+",
+    point=r"[A-Za-z0-9_-]+",
 
 
 def object_files(ext):
@@ -101,6 +109,39 @@ def detection_files(method, dataset):
     )
 
 
+def ablation_point_inputs(wildcards):
+    """Scenes, objects and templates of a grid point; SASA points also need their training scenes."""
+    point = ABLATION[wildcards.point]
+    inputs = {
+        "scenes": expand("results/scenes/{scene}.npz", scene=ABLATION_SCENES),
+        "labels": expand("results/scenes/{scene}.json", scene=ABLATION_SCENES),
+        "meta": object_files("json"),
+        "meshes": object_files("ply"),
+        "templates": template_files(),
+    }
+    if point["method"] == "sasa":
+        inputs["train"] = split_scene_files(f"train_{point['fraction']}", "npz")
+        inputs["train_labels"] = split_scene_files(f"train_{point['fraction']}", "json")
+    return inputs
+
+
+def ablation_base_params(point):
+    """The configured hyper-parameters a grid point starts from (only its own method's, so that a
+    change of another method's settings does not rerun the point)."""
+    if point["method"] == "sasa":
+        return {k: config["sasa"][k] for k in ("preset", "params")}
+    return config["model_based"][point["method"][len("model_based_") :]]
+
+
+def ablation_files():
+    """Result file of every ablation grid point and of the default-settings reference."""
+    if not ABLATION:
+        return []
+    return expand("results/ablation/points/{point}.json", point=ABLATION) + [
+        "results/ablation/reference.json"
+    ]
+
+
 def final_outputs():
     """Every final artifact of the workflow on the current config."""
     return (
@@ -110,4 +151,5 @@ def final_outputs():
         + scene_files("npz")
         + ["results/tables/dataset_stats.csv"]
         + eval_files()
+        + ablation_files()
     )

@@ -16,6 +16,18 @@ def test_default_config_is_valid_and_complete(default_config):
     assert default_config["sensor"]["swath_deg"] == 130
 
 
+def test_paper_config_is_valid():
+    import copy
+
+    base = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    paper = yaml.safe_load((REPO / "config" / "paper.yaml").read_text())
+    merged = copy.deepcopy(base)
+    for k, v in paper.items():  # Snakemake merges --configfile sections into the configfile's
+        merged[k] = {**merged.get(k, {}), **v} if isinstance(v, dict) else v
+    cfg = validate_config(merged)
+    assert cfg["sasa"]["preset"] == "paper" and not cfg["ablation"]["enabled"]
+
+
 def test_partial_section_keeps_defaults():
     cfg = validate_config({"objects": {"tetrapod_s": {"height_m": 1.5}}})
     assert cfg["objects"]["tetrapod_s"] == {"height_m": 1.5, "mass_kg": 2000, "taper": 0.6}
@@ -32,6 +44,16 @@ def test_partial_section_keeps_defaults():
         ({"sensor": {"n_beams": "many"}}, "sensor.n_beams"),
         ({"sensr": {}}, "sensr"),
         ({"templates": {"colour": "red"}}, "templates.colour"),
+        ({"model_based": {"ours": {"n_yaw_inits": 2}}}, "model_based.ours"),
+        ({"model_based": {"paper": {"window_overlap": 1.5}}}, "model_based.paper"),
+        ({"model_based": {"variants": ["fast"]}}, "model_based.variants[0]"),
+        ({"sasa": {"params": {"epoch": 3}}}, "sasa.params"),
+        ({"sasa": {"params": {"seed": 3}}}, "sasa.params.seed"),
+        ({"sasa": {"device": "tpu"}}, "sasa.device"),
+        ({"ablation": {"points": [{"name": "a b", "method": "sasa"}]}}, "ablation.points[0]"),
+        ({"ablation": {"points": [{"name": "x", "method": "sasa", "fraction": 30}]}}, "ablation.points[0] (x).fraction"),
+        ({"ablation": {"points": [{"name": "x", "method": "model_based_ours", "params": {"bogus": 1}}]}},
+         "ablation.points[0] (x).params"),
     ],
 )
 def test_bad_config_names_the_key(bad, key):

@@ -101,6 +101,21 @@ def test_metrics_of_every_method(smoke_run):
     assert ours["mAP_headline"] >= 0.6, ours["mAP_headline"]
 
 
+def test_ablation_points_and_reference(smoke_run):
+    names = {"paper_overlap25": "model_based_paper", "sasa50_pts512": "sasa"}
+    for name, method in names.items():
+        r = json.loads((smoke_run / f"results/ablation/points/{name}.json").read_text())
+        assert r["method"] == method and r["n_scenes"] == 1 and r["seconds_per_scene"] > 0
+        assert 0.0 <= r["mAP"] <= 1.0 + 1e-9 and r["n_gt"] >= 5
+    assert json.loads((smoke_run / "results/ablation/points/sasa50_pts512.json").read_text())["train_time_s"] > 0
+    ref = json.loads((smoke_run / "results/ablation/reference.json").read_text())
+    assert sorted(r["name"] for r in ref) == sorted(f"{m} (default)" for m in METHODS)
+    # The reference re-evaluates the main run's detections on the same scene: same mAP as the main eval.
+    main = json.loads((smoke_run / "results/eval/model_based_ours/synthetic/metrics.json").read_text())
+    assert next(r for r in ref if r["name"] == "model_based_ours (default)")["mAP"] == pytest.approx(
+        main["mAP_headline"], abs=1e-12)
+
+
 def test_threshold_change_reruns_only_its_jobs(smoke_run):
     cfg = (smoke_run / "config_smoke.yaml").read_text().replace(
         "ours: {proposal_max_rounds_n: 2}", "ours: {proposal_max_rounds_n: 2, accept_min: 0.4}")
@@ -110,7 +125,7 @@ def test_threshold_change_reruns_only_its_jobs(smoke_run):
                           cwd=smoke_run, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     jobs = _job_counts(proc.stdout + proc.stderr)
-    assert jobs == {"detect_model_based": 1, "evaluate": 1, "all": 1}, jobs
+    assert jobs == {"detect_model_based": 1, "evaluate": 1, "ablation_reference": 1, "all": 1}, jobs
 
 
 def _job_counts(text: str) -> dict:

@@ -155,6 +155,21 @@ def _detector_checks(cfg: dict) -> list[str]:
         sasa.resolve_params(s["params"], sasa.PAPER if s["preset"] == "paper" else sasa.DEFAULTS)
     except (ValueError, TypeError) as exc:
         out.append(f"sasa.params: {exc}")
+    from sonardet.ablation import check_points
+
+    ab = cfg["ablation"]
+    out += check_points(ab["points"], cfg["split"]["fractions"])
+    for i, pt in enumerate(ab["points"]):
+        where = f"ablation.points[{i}] ({pt['name']}).params"
+        try:
+            if pt["method"].startswith("model_based_"):
+                variant = pt["method"][len("model_based_"):]
+                mb.resolve_params({**cfg["model_based"][variant], **pt.get("params", {})}, variant)
+            elif pt["method"] == "sasa":
+                base = sasa.PAPER if s["preset"] == "paper" else sasa.DEFAULTS
+                sasa.resolve_params({**s["params"], **pt.get("params", {})}, base)
+        except (ValueError, TypeError) as exc:
+            out.append(f"{where}: {exc}")
     return out
 
 

@@ -365,6 +365,8 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
             dets = {s.scene_id: _detect_prepared(model, s, params, device) for s in val_scenes}
             row["val_mAP"] = evaluate_scenes(dets, val_paths, params)["mAP_headline"]
         history.append(row)
+        log.info("epoch %d/%d: loss %.4f, %.1f s (%.2f s/step)%s", epoch + 1, epochs, row.get("loss", float("nan")),
+                 ep_s, ep_s / steps_per_epoch, f", val mAP {row['val_mAP']:.3f}" if "val_mAP" in row else "")
         atomic_write_text(out_dir / "loss.csv", _csv_text(history))
         _save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "settings": settings, "params": params,
                "state_dict": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),

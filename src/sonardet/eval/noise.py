@@ -1,0 +1,382 @@
+"""Sonar noise characterisation on a flat reference patch (the source study's appendix).
+
+Method: select the points of a flat patch of the seabed; find the plane with RANSAC (Open3D
+``segment_plane``), refine it by least squares (SVD) on the RANSAC inliers; take the signed
+point-to-plane distances of all patch points; compute their z-scores and trim the points with
+``|z| > z_trim`` (2 by default); report mean, standard deviation, robust sigma and D'Agostino's
+skewness test (``scipy.stats.skewtest``) before and after trimming.
+
+Frames and units: metres. Input points are float64 in the caller's frame (scene frame, or a
+projected CRS such as UTM with eastings ~5e5 m and northings ~4e6 m). Georeferenced input
+(|x| or |y| > ``LOCAL_LIMIT_M``) is shifted by a local origin (:func:`sonardet.io.origin.choose_origin`)
+in float64 before any Open3D work; the plane is reported in that local frame together with the
+origin. Distances are positive above the plane (the plane normal points up, +z).
+
+:func:`simulated_flat_patch` scans a flat seabed with the project's own sensor model, so the
+simulator's noise can be characterised the same way as a real survey's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import open3d as o3d
+import trimesh
+from matplotlib.path import Path as MplPath
+from scipy import stats
+
+from sonardet.io.origin import LOCAL_LIMIT_M, choose_origin
+
+__all__ = [
+    "ARRAY_KEYS",
+    "MIN_POINTS",
+    "MAD_TO_SIGMA",
+    "characterize_noise",
+    "select_patch",
+    "simulated_flat_patch",
+    "to_json",
+]
+
+#: Fewest patch points :func:`characterize_noise` accepts.
+MIN_POINTS = 50
+#: Fewest points ``scipy.stats.skewtest`` accepts.
+MIN_SKEWTEST_POINTS = 8
+#: Scale from the median absolute deviation to the standard deviation of a normal distribution.
+MAD_TO_SIGMA = 1.4826
+#: Keys of the :func:`characterize_noise` result that hold numpy arrays (dropped by :func:`to_json`).
+ARRAY_KEYS = ("distances_m", "kept_mask")
+# Re-selection rounds of the inlier set after the first least-squares refinement.
+_MAX_REFINE_ROUNDS = 10
+
+
+def _check_xyz(xyz) -> np.ndarray:
+    """(N, 3) float64 view/copy of ``xyz``; raise naming the first non-finite row."""
+    arr = np.asarray(xyz)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"xyz: expected an (N, 3) array of x, y, z in metres, got shape {arr.shape}")
+    if arr.dtype.kind not in "fiu":
+        raise ValueError(f"xyz: expected numeric coordinates, got dtype {arr.dtype}")
+    arr = arr.astype(np.float64, copy=False)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise ValueError(
+            f"xyz row {row} (0-based) has non-finite coordinates {arr[row].tolist()} "
+            f"({int(bad.sum())} row(s) affected); remove those points first"
+        )
+    return arr
+
+
+def _local_origin(xyz: np.ndarray) -> np.ndarray:
+    """choose_origin(xyz) for georeferenced points (|x| or |y| > LOCAL_LIMIT_M), else zeros (float64, m)."""
+    if len(xyz) and np.abs(xyz[:, :2]).max() > LOCAL_LIMIT_M:
+        return choose_origin(xyz)
+    return np.zeros(3, dtype=np.float64)
+
+
+def _interval(patch: dict, key: str) -> tuple[float, float]:
+    vals = patch[key]
+    try:
+        lo, hi = (float(v) for v in vals)
+    except (TypeError, ValueError):
+        raise ValueError(f"patch {key!r}: expected [min, max] in metres, got {vals!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError(f"patch {key!r}: expected finite [min, max] with min < max, got {vals!r}")
+    return lo, hi
+
+
+def _polygon(patch: dict) -> np.ndarray:
+    try:
+        poly = np.asarray(patch["polygon"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"patch 'polygon': expected [[x, y], ...] in metres, got {patch['polygon']!r}") from None
+    if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3:
+        raise ValueError(f"patch 'polygon': expected at least 3 vertices [[x, y], ...], got shape {poly.shape}")
+    if not np.isfinite(poly).all():
+        raise ValueError("patch 'polygon': vertices must be finite")
+    return poly
+
+
+def _patch_kind(patch: dict) -> str:
+    """'box' or 'polygon'; raise for anything else."""
+    if not isinstance(patch, dict):
+        raise ValueError(f"patch: expected a dict ({{'x': [min, max], 'y': [min, max]}} or "
+                         f"{{'polygon': [[x, y], ...]}}), got {type(patch).__name__}")
+    keys = set(patch) - {"name"}
+    if keys == {"x", "y"}:
+        return "box"
+    if keys == {"polygon"}:
+        return "polygon"
+    raise ValueError(
+        f"patch: keys {sorted(patch)} are neither a box {{'x': [min, max], 'y': [min, max]}} nor a "
+        "polygon {'polygon': [[x, y], ...]} (an optional 'name' is allowed)"
+    )
+
+
+def _describe(patch: dict | None, name: str) -> str:
+    """Short label of a patch for messages."""
+    if name:
+        return f"patch {name!r}"
+    if patch is None:
+        return "patch (all points)"
+    if _patch_kind(patch) == "box":
+        return f"patch x {list(patch['x'])} y {list(patch['y'])}"
+    return f"polygon patch with {len(patch['polygon'])} vertices"
+
+
+def _patch_json(patch: dict | None) -> dict | None:
+    """The patch as plain JSON types."""
+    if patch is None:
+        return None
+    out: dict[str, Any] = {}
+    if "name" in patch:
+        out["name"] = str(patch["name"])
+    if _patch_kind(patch) == "box":
+        out["x"] = list(_interval(patch, "x"))
+        out["y"] = list(_interval(patch, "y"))
+    else:
+        out["polygon"] = _polygon(patch).tolist()
+    return out
+
+
+def select_patch(xyz, patch: dict) -> np.ndarray:
+    """Boolean mask (N,) of the points of ``xyz`` (N, 3), metres, inside ``patch``.
+
+    ``patch`` is in the same frame/CRS as the points: an axis-aligned box
+    ``{"x": [min, max], "y": [min, max]}`` (bounds inclusive) or a polygon
+    ``{"polygon": [[x, y], ...]}`` (``matplotlib.path.Path.contains_points``; points exactly on
+    the boundary may fall either side). An optional ``"name"`` key is ignored. Only x and y are
+    tested. Georeferenced coordinates are shifted to a local origin in float64 before the polygon
+    test. Raises ``ValueError`` for a malformed patch or non-finite points (naming the row).
+    """
+    pts = _check_xyz(xyz)
+    if _patch_kind(patch) == "box":
+        x0, x1 = _interval(patch, "x")
+        y0, y1 = _interval(patch, "y")
+        x, y = pts[:, 0], pts[:, 1]
+        return (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+    poly = _polygon(patch)
+    if len(pts) == 0:
+        return np.zeros(0, dtype=bool)
+    origin = _local_origin(pts)
+    path = MplPath(poly - origin[:2])
+    return np.asarray(path.contains_points(pts[:, :2] - origin[:2]), dtype=bool)
+
+
+def _svd_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares plane of (M, 3) float64 points: (unit normal with n_z >= 0, centroid, singular values)."""
+    centroid = points.mean(axis=0)
+    _, s, vt = np.linalg.svd(points - centroid, full_matrices=False)
+    normal = vt[-1]
+    # Orient the normal up so that positive distances lie above the seabed.
+    lead = normal[2] if normal[2] != 0 else normal[np.flatnonzero(normal)[0]]
+    if lead < 0:
+        normal = -normal
+    return normal, centroid, s
+
+
+def _stats(d: np.ndarray) -> dict[str, Any]:
+    """Summary of distances d (metres): n, mean, std (ddof=1), rms, robust sigma, skewness and D'Agostino test."""
+    n = int(len(d))
+    out: dict[str, Any] = {"n": n, "mean_m": None, "std_m": None, "rms_m": None, "median_m": None,
+                           "robust_sigma_m": None, "skewness": None,
+                           "skewtest_statistic": None, "skewtest_pvalue": None}
+    if n == 0:
+        return out
+    med = float(np.median(d))
+    out["mean_m"] = float(np.mean(d))
+    out["median_m"] = med
+    out["rms_m"] = float(np.sqrt(np.mean(d * d)))
+    out["robust_sigma_m"] = float(MAD_TO_SIGMA * np.median(np.abs(d - med)))
+    if n >= 2:
+        out["std_m"] = float(np.std(d, ddof=1))
+    # Constant data have no defined skewness; scipy's test needs n >= 8.
+    if n >= 3 and np.ptp(d) > 0:
+        out["skewness"] = float(stats.skew(d))
+        if n >= MIN_SKEWTEST_POINTS:
+            res = stats.skewtest(d)
+            out["skewtest_statistic"] = float(res.statistic)
+            out["skewtest_pvalue"] = float(res.pvalue)
+    return out
+
+
+def characterize_noise(
+    xyz,
+    patch: dict | None = None,
+    *,
+    ransac_distance_m: float = 0.05,
+    ransac_n: int = 3,
+    iterations: int = 1000,
+    z_trim: float = 2.0,
+    seed: int = 0,
+    name: str = "",
+) -> dict[str, Any]:
+    """Noise statistics of the points of ``xyz`` (N, 3), metres, float64, inside ``patch``.
+
+    ``patch``: see :func:`select_patch`; None uses all points. ``name`` labels the result (default:
+    the patch's ``"name"`` key, if any).
+
+    Steps: RANSAC plane (Open3D ``segment_plane`` with inlier distance ``ransac_distance_m``,
+    ``ransac_n`` points per sample and ``iterations`` samples, seeded with ``seed``). The inlier
+    distance should be several times the noise: it only serves to find the plane, which is then
+    refined by least squares (SVD about the centroid) on the inliers, re-selecting the inliers of
+    the refined plane until they no longer change (at most 10 rounds); the result therefore hardly
+    depends on the threshold. Then the signed distances (m, positive above the plane) of all patch
+    points to the refined plane, their z-scores (``scipy.stats.zscore``: mean and ddof=0 std),
+    kept = ``|z| <= z_trim``, and statistics before (all patch points) and after trimming (kept).
+
+    Returns a dict:
+        ``name``, ``patch`` (as JSON), ``n_points``, ``n_kept``, ``n_trimmed``, ``z_trim``;
+        ``origin``: [x, y, z] float64 local origin subtracted from the points (zeros for local
+        input); ``plane``: ``normal`` (unit, n_z >= 0), ``d`` (normal . p + d = 0 for p in the local
+        frame ``xyz - origin``), ``centroid`` (local frame), ``slope_deg`` and ``dip_azimuth_deg``
+        (direction of steepest descent, degrees clockwise from +y, i.e. from north for x east,
+        y north; None on a level plane); ``ransac``: settings, ``n_inliers`` of the RANSAC plane and
+        ``n_inliers_refined``; ``before`` / ``after``: ``n``, ``mean_m``, ``std_m`` (ddof=1),
+        ``rms_m``, ``median_m``, ``robust_sigma_m`` (1.4826 * MAD), ``skewness``,
+        ``skewtest_statistic``, ``skewtest_pvalue`` (None where undefined: fewer than 8 points or
+        constant distances); plus the numpy arrays ``distances_m`` (float64, one per patch point,
+        in the order of ``xyz[select_patch(xyz, patch)]``) and ``kept_mask`` (bool, same length).
+        The arrays are not JSON-serialisable: drop them before ``json.dump`` with :func:`to_json`.
+
+    Raises ``ValueError`` for non-finite points (naming the row), a malformed patch, bad
+    settings, fewer than ``MIN_POINTS`` (50) points in the patch (naming the patch and the count)
+    or collinear/coincident patch points (no plane).
+    """
+    pts = _check_xyz(xyz)
+    if patch is not None and not name:
+        name = str(patch.get("name", "")) if isinstance(patch, dict) else ""
+    label = _describe(patch, name)
+    if not (math.isfinite(ransac_distance_m) and ransac_distance_m > 0):
+        raise ValueError(f"ransac_distance_m must be a positive number of metres, got {ransac_distance_m!r}")
+    if int(ransac_n) < 3:
+        raise ValueError(f"ransac_n must be >= 3 (points per plane sample), got {ransac_n!r}")
+    if int(iterations) < 1:
+        raise ValueError(f"iterations must be >= 1, got {iterations!r}")
+    if not (math.isfinite(z_trim) and z_trim > 0):
+        raise ValueError(f"z_trim must be a positive number of standard deviations, got {z_trim!r}")
+
+    mask = np.ones(len(pts), dtype=bool) if patch is None else select_patch(pts, patch)
+    sel = pts[mask]
+    if len(sel) < MIN_POINTS:
+        raise ValueError(f"{label}: {len(sel)} points, need at least {MIN_POINTS} to characterise noise")
+
+    origin = _local_origin(sel)
+    local = sel - origin
+    _, _, s_all = _svd_plane(local)
+    if s_all[1] <= 1e-9 * max(s_all[0], np.finfo(float).tiny):
+        raise ValueError(f"{label}: the {len(sel)} points are collinear or coincident; no plane to fit")
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(local))
+    o3d.utility.random.seed(int(seed))
+    model, inliers = pcd.segment_plane(distance_threshold=float(ransac_distance_m), ransac_n=int(ransac_n),
+                                       num_iterations=int(iterations))
+    inl = np.zeros(len(local), dtype=bool)
+    inl[np.asarray(inliers, dtype=np.int64)] = True
+    n_ransac = int(inl.sum())
+    if n_ransac < 3:
+        raise ValueError(f"{label}: RANSAC found only {n_ransac} inliers; increase ransac_distance_m")
+
+    for _ in range(_MAX_REFINE_ROUNDS):
+        normal, centroid, s = _svd_plane(local[inl])
+        n_fit = int(inl.sum())
+        if s[1] <= 1e-9 * max(s[0], np.finfo(float).tiny):
+            raise ValueError(f"{label}: the plane inliers are collinear; increase ransac_distance_m")
+        new = np.abs((local - centroid) @ normal) <= ransac_distance_m
+        if new.sum() < 3 or np.array_equal(new, inl):
+            break
+        inl = new
+    d_plane = -float(normal @ centroid)
+    dist = (local - centroid) @ normal
+
+    std0 = float(np.std(dist))
+    if std0 > 0:
+        z = stats.zscore(dist)
+        kept = np.abs(z) <= z_trim
+    else:
+        kept = np.ones(len(dist), dtype=bool)
+
+    horiz = float(np.hypot(normal[0], normal[1]))
+    slope = math.degrees(math.atan2(horiz, abs(float(normal[2]))))
+    azimuth = None if horiz == 0 else math.degrees(math.atan2(normal[0], normal[1])) % 360.0
+
+    return {
+        "name": name,
+        "patch": _patch_json(patch),
+        "n_points": int(len(dist)),
+        "n_kept": int(kept.sum()),
+        "n_trimmed": int((~kept).sum()),
+        "z_trim": float(z_trim),
+        "origin": [float(v) for v in origin],
+        "plane": {
+            "frame": "local (xyz - origin)",
+            "normal": [float(v) for v in normal],
+            "d": d_plane,
+            "centroid": [float(v) for v in centroid],
+            "slope_deg": slope,
+            "dip_azimuth_deg": azimuth,
+        },
+        "ransac": {
+            "distance_m": float(ransac_distance_m),
+            "n": int(ransac_n),
+            "iterations": int(iterations),
+            "seed": int(seed),
+            "plane_model": [float(v) for v in model],
+            "n_inliers": n_ransac,
+            "n_inliers_refined": n_fit,
+        },
+        "before": _stats(dist),
+        "after": _stats(dist[kept]),
+        "distances_m": dist,
+        "kept_mask": kept,
+    }
+
+
+def to_json(result: dict[str, Any]) -> dict[str, Any]:
+    """Copy of a :func:`characterize_noise` result without its numpy arrays (``ARRAY_KEYS``), ready for ``json.dump``."""
+    return {k: v for k, v in result.items() if k not in ARRAY_KEYS}
+
+
+def simulated_flat_patch(
+    sigma_m: float = 0.01,
+    *,
+    depth_m: float = -11.5,
+    length_m: float = 10.0,
+    seed: int = 0,
+    sensor=None,
+) -> np.ndarray:
+    """Soundings (N, 3) float64, metres, scene frame, of one survey line over a flat seabed.
+
+    The sensor model is :func:`sonardet.sim.mbes.scan` with the default
+    :class:`~sonardet.sim.mbes.SensorConfig` (or ``sensor``, a ``SensorConfig`` or a mapping of
+    sensor settings) and range noise ``sigma_m`` (metres, along the beam). The transducer runs at
+    z = 0 along +x from (0, 0) to (``length_m``, 0); the seabed is a flat square triangle mesh at
+    z = ``depth_m`` large enough for the whole swath. A sounding's beam angle from vertical is
+    therefore ``arctan(|y| / -depth_m)``, and on this plane its range noise shows as a vertical
+    (plane-normal) noise of ``sigma_m * cos(angle)``. ``seed`` seeds the noise and dropouts.
+    """
+    from sonardet.sim.mbes import RaycastTarget, SensorConfig, scan, straight_line, swath_half_width_m
+
+    if not (math.isfinite(sigma_m) and sigma_m >= 0):
+        raise ValueError(f"sigma_m must be a non-negative number of metres, got {sigma_m!r}")
+    if not (math.isfinite(depth_m) and depth_m < 0):
+        raise ValueError(f"depth_m must be below the transducer (z = 0), got {depth_m!r}")
+    if not (math.isfinite(length_m) and length_m > 0):
+        raise ValueError(f"length_m must be positive, got {length_m!r}")
+    if sensor is None:
+        sensor = SensorConfig()
+    elif not isinstance(sensor, SensorConfig):
+        sensor = SensorConfig.from_dict(dict(sensor))
+    sensor = replace(sensor, range_sigma_m=float(sigma_m))
+    altitude = -float(depth_m)
+    half = swath_half_width_m(sensor, altitude) + length_m + 5.0
+    xc = 0.5 * length_m
+    vertices = np.array([[xc - half, -half, depth_m], [xc + half, -half, depth_m],
+                         [xc + half, half, depth_m], [xc - half, half, depth_m]], dtype=np.float64)
+    seabed = trimesh.Trimesh(vertices=vertices, faces=np.array([[0, 1, 2], [0, 2, 3]]), process=False)
+    traj = straight_line([0.0, 0.0], [length_m, 0.0], 0.0, sensor, altitude)
+    out = scan(RaycastTarget([(seabed.vertices, seabed.faces)]), traj, sensor, np.random.default_rng(seed))
+    return np.ascontiguousarray(out.xyz, dtype=np.float64)

@@ -1,0 +1,327 @@
+"""Report tables: pure functions from result files (or loaded dicts) to DataFrames, and a writer that
+puts each table out as CSV (full precision), GitHub Markdown and booktabs LaTeX (rounded).
+
+Column names carry their unit or threshold (`mAP@0.5m` is the mean over classes of AP with a 0.5 m
+centre-distance match threshold). Rows with the source study's figures are labelled "study".
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..eval.evaluate import threshold_key
+from ..io.atomic import atomic_write_text
+from .inputs import benchmark_summary, count_annotations, load_json, load_metrics
+
+#: Figures of the source study, synthetic test scenes (its results section). The study's reported mAP
+#: goes into the headline-mAP column of our tables; values it does not report stay empty.
+STUDY = {
+    "comparison": {
+        "SASA (study)": {"mAP": 0.98, "predictions": 991},
+        "model-based (study)": {"mAP": 0.97, "predictions": 957},
+    },
+    "sasa_fraction_mAP": {25: 0.96, 50: 0.97, 100: 0.98},
+    "model_based_mAP": 0.97,
+    "dataset": {"scenes": {"train": 80, "test": 20, "all": 100}, "objects": {"all": 5491}},
+}
+
+STUDY_SOURCE = "source study"
+THIS_RUN = "this run"
+
+
+# ---------------------------------------------------------------------------------------------------
+# Formatting and writing
+
+
+def format_cell(v, na: str = "") -> str:
+    """Text of one table cell: integers as is, floats rounded by magnitude (>= 100: 0 decimals,
+    >= 10: 1, else 3), missing values (None, NaN, NA) as `na`."""
+    if v is None or v is pd.NA or (isinstance(v, (float, np.floating)) and math.isnan(v)):
+        return na
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        a = abs(float(v))
+        if math.isinf(a):
+            return str(float(v))
+        if a >= 100:
+            return f"{v:.0f}"
+        if a >= 10:
+            return f"{v:.1f}"
+        if 0 < a < 1e-3:
+            return f"{v:.1e}"
+        return f"{v:.3f}"
+    return str(v)
+
+
+def _is_numeric(s: pd.Series) -> bool:
+    return pd.api.types.is_numeric_dtype(s) and not pd.api.types.is_bool_dtype(s)
+
+
+def _formatted(df: pd.DataFrame, na: str) -> pd.DataFrame:
+    return pd.DataFrame({c: [format_cell(v, na) for v in df[c].tolist()] for c in df.columns}, dtype=object)
+
+
+def markdown_table(df: pd.DataFrame, caption: str | None = None) -> str:
+    """GitHub-flavoured Markdown of a table (numbers right-aligned, rounded by `format_cell`)."""
+    cells = _formatted(df, "")
+    esc = lambda s: str(s).replace("|", "\\|").replace("\n", " ")  # noqa: E731
+    lines = []
+    if caption:
+        lines += [f"*{esc(caption)}*", ""]
+    lines.append("| " + " | ".join(esc(c) for c in df.columns) + " |")
+    lines.append("|" + "|".join("---:" if _is_numeric(df[c]) else ":---" for c in df.columns) + "|")
+    for _, row in cells.iterrows():
+        lines.append("| " + " | ".join(esc(v) for v in row.tolist()) + " |")
+    return "\n".join(lines) + "\n"
+
+
+_LATEX_SPECIAL = {"&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{", "}": r"\}",
+                  "~": r"\textasciitilde{}", "^": r"\textasciicircum{}", "\\": r"\textbackslash{}"}
+
+
+def latex_escape(s: str) -> str:
+    """Escape LaTeX special characters in plain text."""
+    return re.sub(r"[&%$#_{}~^\\]", lambda m: _LATEX_SPECIAL[m.group(0)], str(s))
+
+
+def _latex_by_hand(cells: pd.DataFrame, column_format: str, caption: str | None, label: str | None) -> str:
+    out = []
+    if caption is not None:
+        out += ["\\begin{table}", f"\\caption{{{caption}}}"]
+        if label:
+            out.append(f"\\label{{{label}}}")
+    out += [f"\\begin{{tabular}}{{{column_format}}}", "\\toprule",
+            " & ".join(latex_escape(c) for c in cells.columns) + " \\\\", "\\midrule"]
+    for _, row in cells.iterrows():
+        out.append(" & ".join(latex_escape(v) for v in row.tolist()) + " \\\\")
+    out += ["\\bottomrule", "\\end{tabular}"]
+    if caption is not None:
+        out.append("\\end{table}")
+    return "\n".join(out) + "\n"
+
+
+def latex_table(df: pd.DataFrame, caption: str | None = None, label: str | None = None,
+                use_pandas: bool | None = None) -> str:
+    """Booktabs LaTeX of a table (needs \\usepackage{booktabs}); in a `table` float when a caption is
+    given. Uses pandas `to_latex` when jinja2 is importable (use_pandas None: auto), else a small
+    writer of the same layout. Missing values print as '--'."""
+    cells = _formatted(df, "--")
+    column_format = "".join("r" if _is_numeric(df[c]) else "l" for c in df.columns)
+    cap = latex_escape(caption) if caption is not None else None
+    if use_pandas is None:
+        use_pandas = importlib.util.find_spec("jinja2") is not None  # pandas' to_latex needs jinja2
+    if not use_pandas:
+        return _latex_by_hand(cells, column_format, cap, label)
+    # pandas would also put a \label without a caption; keep both writers' layout the same.
+    return cells.to_latex(index=False, escape=True, column_format=column_format, caption=cap,
+                          label=label if cap is not None else None)
+
+
+def write_table(df: pd.DataFrame, stem, caption: str | None = None) -> list[Path]:
+    """Write a table as `{stem}.csv` (full precision, missing values empty), `{stem}.md` (GitHub
+    Markdown) and `{stem}.tex` (booktabs, label `tab:{stem name}`), each atomically. Returns the paths."""
+    stem = Path(stem)
+    paths = [stem.with_name(stem.name + ext) for ext in (".csv", ".md", ".tex")]
+    atomic_write_text(paths[0], df.to_csv(index=False, lineterminator="\n"))
+    atomic_write_text(paths[1], markdown_table(df, caption))
+    atomic_write_text(paths[2], latex_table(df, caption, label=f"tab:{stem.name}"))
+    return paths
+
+
+# ---------------------------------------------------------------------------------------------------
+# Tables
+
+
+def _counts_as_int(df: pd.DataFrame, cols) -> pd.DataFrame:
+    for c in cols:
+        if c in df.columns:
+            df[c] = pd.array([None if pd.isna(v) else int(v) for v in df[c]], dtype="Int64")
+    return df
+
+
+def _mAP_col(headline_m: float) -> str:
+    return f"mAP@{threshold_key(headline_m)}m"
+
+
+def comparison_table(metrics: dict, classes=None, study: bool = True) -> pd.DataFrame:
+    """One row per method (insertion order of `metrics`: method -> metrics.json path or dict).
+
+    Columns: method, source ('this run' or 'source study'), mAP@{headline}m, predictions (all classes),
+    ground truth (visible objects, all classes), `AP@{headline}m {cls}` for each class (default: the
+    first metrics' classes), then mAP at every other threshold. With study=True the source study's rows
+    follow ('SASA (study)', 'model-based (study)'; only mAP and predictions are known).
+    """
+    loaded = {k: load_metrics(v) for k, v in metrics.items()}
+    first = next(iter(loaded.values()), None)
+    headline = first["headline_m"] if first else 0.5
+    if classes is None:
+        classes = list(first["classes"]) if first else []
+    hk = threshold_key(headline)
+    other = [t for t in (first["dist_thresholds_m"] if first else []) if float(t) != float(headline)]
+    cols = (["method", "source", _mAP_col(headline), "predictions", "ground truth"]
+            + [f"AP@{hk}m {c}" for c in classes] + [f"mAP@{threshold_key(t)}m" for t in other])
+    rows = []
+    for method, m in loaded.items():
+        if float(m["headline_m"]) != float(headline):
+            raise ValueError(f"metrics of {method!r} use headline threshold {m['headline_m']} m, the first "
+                             f"ones {headline} m; evaluate every method with the same settings")
+        pc = m["per_class"]
+        row = {"method": method, "source": THIS_RUN, _mAP_col(headline): m["mAP_headline"],
+               "predictions": sum(int(v["n_pred"]) for v in pc.values()),
+               "ground truth": sum(int(v["n_gt"]) for v in pc.values())}
+        for c in classes:
+            row[f"AP@{hk}m {c}"] = pc[c]["AP"][hk] if c in pc else np.nan
+        for t in other:
+            row[f"mAP@{threshold_key(t)}m"] = m["mAP"].get(threshold_key(t), np.nan)
+        rows.append(row)
+    if study:
+        for name, fig in STUDY["comparison"].items():
+            rows.append({"method": name, "source": STUDY_SOURCE, _mAP_col(headline): fig["mAP"],
+                         "predictions": fig["predictions"]})
+    df = pd.DataFrame(rows, columns=cols)
+    return _counts_as_int(df, ["predictions", "ground truth"])
+
+
+def _fraction(key) -> int:
+    """25, '25', '25%' or 'sasa_25' -> 25."""
+    s = str(key).strip().rstrip("%").strip()
+    return int(s.rsplit("_", 1)[-1])
+
+
+def fraction_table(train_summaries: dict, metrics: dict, train_annotations: dict | None = None,
+                   scenes_dir=None) -> pd.DataFrame:
+    """SASA trained on each data fraction beside the training-free model-based detector.
+
+    train_summaries: fraction (25, '25' or 'sasa_25') -> `models/sasa_{f}/train.json` path or dict.
+    metrics: method -> metrics.json path or dict; SASA rows read `sasa_{f}`, and every `model_based*`
+    method gets a row with 0 training scenes ('no training'). Training annotations per fraction come
+    from train_annotations (fraction -> count) or, when scenes_dir (the `scenes/` folder) is given, by
+    counting the visible objects of the summary's `train_scenes`; else they stay empty.
+    Columns: method, training, training data (%), training scenes, training annotations,
+    mAP@{headline}m, mAP@{headline}m (study).
+    """
+    loaded = {k: load_metrics(v) for k, v in metrics.items()}
+    headline = next(iter(loaded.values()))["headline_m"] if loaded else 0.5
+    col, scol = _mAP_col(headline), _mAP_col(headline) + " (study)"
+    ann = {_fraction(k): v for k, v in (train_annotations or {}).items()}
+    rows = []
+    for key, summ in sorted(train_summaries.items(), key=lambda kv: _fraction(kv[0])):
+        f = _fraction(key)
+        s = load_json(summ)
+        n_ann = ann.get(f)
+        if n_ann is None and scenes_dir is not None and s.get("train_scenes"):
+            n_ann = count_annotations(Path(scenes_dir) / f"{sid}.json" for sid in s["train_scenes"])
+        m = loaded.get(f"sasa_{f}")
+        rows.append({"method": f"sasa_{f}", "training": f"SASA, {f} % of the training split",
+                     "training data (%)": f, "training scenes": s.get("n_train_scenes"),
+                     "training annotations": n_ann, col: m["mAP_headline"] if m else np.nan,
+                     scol: STUDY["sasa_fraction_mAP"].get(f, np.nan)})
+    for method, m in loaded.items():
+        if method.startswith("model_based"):
+            rows.append({"method": method, "training": "no training", "training data (%)": 0,
+                         "training scenes": 0, "training annotations": 0, col: m["mAP_headline"],
+                         scol: STUDY["model_based_mAP"]})
+    cols = ["method", "training", "training data (%)", "training scenes", "training annotations", col, scol]
+    df = pd.DataFrame(rows, columns=cols)
+    return _counts_as_int(df, ["training data (%)", "training scenes", "training annotations"])
+
+
+def _stage_rows(method: str, stats: list[dict], mem_mb) -> list[dict]:
+    stages: list[str] = []
+    for s in stats:
+        stages += [k for k in s.get("seconds", {}) if k not in stages]
+    if "total" in stages:  # total last
+        stages = [k for k in stages if k != "total"] + ["total"]
+    rows = []
+    for st in stages:
+        v = np.array([float(s["seconds"][st]) for s in stats if st in s.get("seconds", {})])
+        rows.append({"method": method, "stage": st, "unit": "s/scene", "n": len(v), "mean": float(v.mean()),
+                     "max": float(v.max()), "peak memory (MB)": mem_mb if st == "total" else np.nan})
+    return rows
+
+
+def timing_table(model_based_stats: dict | None = None, sasa_inference: dict | None = None,
+                 sasa_train: dict | None = None, simulation_benchmarks=None, scene_jsons=None,
+                 benchmarks: dict | None = None) -> pd.DataFrame:
+    """Run time and memory per method and stage (seconds, MB), one row per (method, stage).
+
+    model_based_stats: method -> list of per-scene `stats/{method}/{dataset}/{scene}.json` (paths or
+      dicts); gives mean and max over scenes of every entry of `seconds` (ground, proposals,
+      registration, scoring, selection, ..., total last), unit s/scene.
+    sasa_inference: method -> `stats/{method}/{dataset}/inference.json`; stage 'inference', s/scene
+      (mean only), peak memory from its peak_rss_mb.
+    sasa_train: method (e.g. 'sasa_25') -> `models/{method}/train.json`; stages 'training' (s, total
+      training time) and 'training step' (s/step), peak memory from peak_rss_mb.
+    simulation_benchmarks: Snakemake benchmark `.tsv` files of the scene simulation rule; stage
+      'scene (benchmark)', s/scene, peak memory = max of max_rss.
+    scene_jsons: `scenes/{scene}.json` (paths or dicts); their `timings_s` give the simulator's stages
+      (seabed, layout, physics, scan, ...), s/scene.
+    benchmarks: method -> benchmark `.tsv` files of its detection or inference rule; their max_rss fills
+      the method's peak memory where the stats do not give one.
+    Columns: method, stage, unit, n (files averaged), mean, max, peak memory (MB).
+    """
+    rows = []
+    bench_mem = {m: benchmark_summary(p)["max_rss_mb"] for m, p in (benchmarks or {}).items()}
+    for method, files in (model_based_stats or {}).items():
+        stats = [load_json(f) for f in files]
+        if stats:
+            rows += _stage_rows(method, stats, bench_mem.get(method, np.nan))
+    for method, src in (sasa_inference or {}).items():
+        d = load_json(src)
+        mem = d.get("peak_rss_mb", bench_mem.get(method, np.nan))
+        rows.append({"method": method, "stage": "inference", "unit": "s/scene", "n": d.get("n_scenes"),
+                     "mean": d.get("s_per_scene"), "max": np.nan, "peak memory (MB)": mem})
+    for method, src in (sasa_train or {}).items():
+        d = load_json(src)
+        name = method if str(method).startswith("sasa") else f"sasa_{_fraction(method)}"
+        rows.append({"method": name, "stage": "training", "unit": "s", "n": d.get("n_train_scenes"),
+                     "mean": d.get("train_time_s"), "max": np.nan, "peak memory (MB)": d.get("peak_rss_mb")})
+        rows.append({"method": name, "stage": "training step", "unit": "s/step", "n": d.get("steps"),
+                     "mean": d.get("s_per_step"), "max": np.nan, "peak memory (MB)": np.nan})
+    sims = [load_json(s) for s in (scene_jsons or [])]
+    if sims:
+        keys: list[str] = []
+        for s in sims:
+            keys += [k for k in s.get("timings_s", {}) if k not in keys]
+        for k in keys:
+            v = np.array([float(s["timings_s"][k]) for s in sims if k in s.get("timings_s", {})])
+            rows.append({"method": "simulation", "stage": k.removesuffix("_s"), "unit": "s/scene", "n": len(v),
+                         "mean": float(v.mean()), "max": float(v.max()), "peak memory (MB)": np.nan})
+    if simulation_benchmarks:
+        b = benchmark_summary(simulation_benchmarks)
+        rows.append({"method": "simulation", "stage": "scene (benchmark)", "unit": "s/scene", "n": b["n"],
+                     "mean": b["mean_s"], "max": b["max_s"], "peak memory (MB)": b["max_rss_mb"]})
+    cols = ["method", "stage", "unit", "n", "mean", "max", "peak memory (MB)"]
+    df = pd.DataFrame(rows, columns=cols)
+    for c in ("mean", "max", "peak memory (MB)"):
+        df[c] = pd.to_numeric(df[c], errors="coerce").astype(float)
+    return _counts_as_int(df, ["n"])
+
+
+def dataset_table(stats_csv) -> pd.DataFrame:
+    """`tables/dataset_stats.csv` (path or DataFrame) reshaped for the report, the study's figures beside.
+
+    Columns: split, scenes, objects, (not visible, when present), one column per class holding
+    'count (share %)', scenes (study), objects (study). The study reports 100 scenes (80 train /
+    20 test) and 5491 objects in all.
+    """
+    src = stats_csv if isinstance(stats_csv, pd.DataFrame) else pd.read_csv(stats_csv)
+    classes = [c.removesuffix("_share_pct") for c in src.columns if c.endswith("_share_pct")]
+    out = pd.DataFrame({"split": src["split"].astype(str), "scenes": src["scenes"], "objects": src["objects"]})
+    if "objects_not_visible" in src.columns:
+        out["not visible"] = src["objects_not_visible"]
+    for c in classes:
+        out[c] = [f"{int(n)} ({p:.1f} %)" for n, p in zip(src[c], src[f"{c}_share_pct"])]
+    sd = STUDY["dataset"]
+    out["scenes (study)"] = [sd["scenes"].get(s) for s in out["split"]]
+    out["objects (study)"] = [sd["objects"].get(s) for s in out["split"]]
+    return _counts_as_int(out, ["scenes", "objects", "not visible", "scenes (study)", "objects (study)"])
