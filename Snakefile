@@ -15,6 +15,8 @@ include: "rules/model_based.smk"
 include: "rules/sasa.smk"
 include: "rules/evaluate.smk"
 include: "rules/ablation.smk"
+include: "rules/noise.smk"
+include: "rules/report.smk"
 
 
 rule all:

@@ -142,6 +142,42 @@ def ablation_files():
     ]
 
 
+NOISE = config["noise"]["enabled"] and os.path.exists(config["noise"]["survey"])
+if config["noise"]["enabled"] and not NOISE:
+    print(
+        f"sonardet: noise.survey {config['noise']['survey']} not found: the noise "
+        "characterisation is left out of this run (set noise.survey to a real survey file, "
+        "or noise.enabled: false to silence this)",
+        file=sys.stderr,
+    )
+
+
+#: Report tables (stem -> caption file) and figures (name -> caption file), written by rule report.
+REPORT_TABLES = (
+    ["dataset", "comparison", "fractions", "timing"]
+    + (["ablation"] if ABLATION else [])
+    + (["noise"] if NOISE else [])
+)
+REPORT_FIGURES = (
+    ["topview", "poses3d", "pr_curves", "dataset_example"]
+    + (["loss_curves"] if config["sasa"]["enabled"] else [])
+    + (["pareto"] if ABLATION else [])
+)
+
+
+def report_files():
+    """Every table (csv, md, tex), figure and the summary README written by rule report."""
+    return (
+        expand(
+            "results/report/tables/{table}.{ext}",
+            table=REPORT_TABLES,
+            ext=["csv", "md", "tex"],
+        )
+        + expand("results/report/figures/{figure}.png", figure=REPORT_FIGURES)
+        + ["results/README.md"]
+    )
+
+
 def final_outputs():
     """Every final artifact of the workflow on the current config."""
     return (
@@ -152,4 +188,6 @@ def final_outputs():
         + ["results/tables/dataset_stats.csv"]
         + eval_files()
         + ablation_files()
+        + (["results/noise/noise.json"] if NOISE else [])
+        + report_files()
     )

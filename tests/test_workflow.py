@@ -6,9 +6,10 @@ import subprocess
 import sys
 
 import numpy as np
+import pandas as pd
 import pytest
 
-from conftest import REPO
+from conftest import REAL_FILE, REPO
 from sonardet.objects import load_object
 from sonardet.sim.templates import load_templates
 
@@ -26,6 +27,9 @@ def smoke_run(tmp_path_factory):
             shutil.copy(src, work / name)
     cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "--configfile", "config_smoke.yaml"]
     shutil.copy(REPO / "tests" / "config" / "smoke.yaml", work / "config_smoke.yaml")
+    if REAL_FILE is not None:
+        with open(work / "config_smoke.yaml", "a") as fh:
+            fh.write(f"noise: {{survey: {json.dumps(str(REAL_FILE))}}}\n")
     proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return work
@@ -116,6 +120,44 @@ def test_ablation_points_and_reference(smoke_run):
         main["mAP_headline"], abs=1e-12)
 
 
+def test_report_tables_and_figures(smoke_run):
+    from sonardet.report import image_is_informative
+
+    tables = smoke_run / "results/report/tables"
+    expected_rows = {"dataset": 3, "comparison": len(METHODS) + 2, "fractions": len(METHODS),
+                     "ablation": 2 + len(METHODS)}
+    if REAL_FILE is not None:
+        expected_rows["noise"] = 3  # two real patches and the simulator
+    for name, n in expected_rows.items():
+        df = pd.read_csv(tables / f"{name}.csv")
+        assert len(df) == n, (name, len(df))
+        assert (tables / f"{name}.md").read_text().count("\n|") >= n
+        assert "\\begin{tabular}" in (tables / f"{name}.tex").read_text()
+    timing = pd.read_csv(tables / "timing.csv")
+    assert {"model_based_paper", "model_based_ours", "sasa_100"} <= set(timing["method"])
+    assert (timing["mean"] >= 0).all()
+    assert (timing[timing["stage"] == "total"]["mean"] > 0).all()
+    comparison = pd.read_csv(tables / "comparison.csv")
+    assert comparison["source"].tolist().count("source study") == 2
+    figures = ["topview", "poses3d", "pr_curves", "dataset_example", "loss_curves", "pareto"]
+    for name in figures:
+        assert image_is_informative(smoke_run / f"results/report/figures/{name}.png"), name
+    readme = (smoke_run / "results/README.md").read_text()
+    assert "comparison" in readme and "figures/topview.png" in readme
+    if REAL_FILE is not None:
+        assert image_is_informative(smoke_run / "results/noise/noise.png")
+        noise = json.loads((smoke_run / "results/noise/noise.json").read_text())
+        assert 0.003 < noise["real"][0]["after"]["std_m"] < 0.015
+
+
+def test_html_report(smoke_run):
+    proc = subprocess.run([sys.executable, "-m", "snakemake", "--configfile", "config_smoke.yaml",
+                           "--report", "results/report.html"], cwd=smoke_run, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    html = (smoke_run / "results/report.html")
+    assert html.stat().st_size > 100_000  # self-contained: figures and tables embedded
+
+
 def test_threshold_change_reruns_only_its_jobs(smoke_run):
     cfg = (smoke_run / "config_smoke.yaml").read_text().replace(
         "ours: {proposal_max_rounds_n: 2}", "ours: {proposal_max_rounds_n: 2, accept_min: 0.4}")
@@ -125,7 +167,7 @@ def test_threshold_change_reruns_only_its_jobs(smoke_run):
                           cwd=smoke_run, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     jobs = _job_counts(proc.stdout + proc.stderr)
-    assert jobs == {"detect_model_based": 1, "evaluate": 1, "ablation_reference": 1, "all": 1}, jobs
+    assert jobs == {"detect_model_based": 1, "evaluate": 1, "ablation_reference": 1, "report": 1, "all": 1}, jobs
 
 
 def _job_counts(text: str) -> dict:

@@ -140,7 +140,9 @@ def grid_ground(xyz: np.ndarray, cell_m: float, window_m: float, refine_cell_m: 
     Returns a :class:`Ground` with the final DTM raster (cell `refine_cell_m`) and `hab` per point.
     """
     p = np.asarray(xyz, dtype=np.float64)
-    x0, y0 = float(p[:, 0].min()), float(p[:, 1].min())
+    # Grids are anchored at multiples of the cell in the local frame (not at the cloud's corner), so a
+    # crop of the survey (a tile) sees the same cells as the whole survey does.
+    x0, y0 = (float(np.floor(p[:, k].min() / cell_m) * cell_m) for k in (0, 1))
 
     def grid(cell):
         nx = int(np.floor((p[:, 0].max() - x0) / cell)) + 1

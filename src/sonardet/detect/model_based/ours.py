@@ -111,8 +111,9 @@ class _State:
         self.active = np.ones(len(self.pts), dtype=bool)
         self.tree_xy = cKDTree(self.pts[:, :2]) if len(self.pts) else None
         self.all_tree_xy = cKDTree(xyz[:, :2])
-        self.x0, self.y0 = float(xyz[:, 0].min()), float(xyz[:, 1].min())
         c = p["bev_cell_m"]
+        # Cell-aligned raster origin: a crop of the survey (a tile) sees the same cells as the whole.
+        self.x0, self.y0 = (float(np.floor(xyz[:, k].min() / c) * c) for k in (0, 1))
         self.shape = (int((xyz[:, 1].max() - self.y0) / c) + 1, int((xyz[:, 0].max() - self.x0) / c) + 1)
         self.rejected = []  # hypotheses not accepted (kept, down-weighted, for recall)
         self.owner = np.full(len(self.pts), -1, dtype=np.int64)  # uid of the accepted object explaining a point
@@ -346,7 +347,7 @@ def _residual_seeds(st, g_idx, p) -> list:
     cluster's centroid unless a peak is that close."""
     cell = 0.1
     xy = st.pts[g_idx, :2]
-    lo = xy.min(0) - 1.0
+    lo = np.floor((xy.min(0) - 1.0) / cell) * cell  # cell-aligned: a crop sees the same cells
     shape = tuple((np.ceil((xy.max(0) + 1.0 - lo) / cell)).astype(int)[::-1])
     j = ((xy[:, 0] - lo[0]) / cell).astype(int)
     i = ((xy[:, 1] - lo[1]) / cell).astype(int)

@@ -187,7 +187,7 @@ def clusters(xy: np.ndarray, cell_m: float, min_points: int):
     """
     if len(xy) == 0:
         return []
-    x0, y0 = xy.min(0)
+    x0, y0 = np.floor(xy.min(0) / cell_m) * cell_m  # cell-aligned: a crop sees the same cells
     j = ((xy[:, 0] - x0) / cell_m).astype(np.int64)
     i = ((xy[:, 1] - y0) / cell_m).astype(np.int64)
     occ = np.zeros((i.max() + 1, j.max() + 1), dtype=bool)

@@ -1,0 +1,333 @@
+"""`sonardet detect` and the CSV/GeoJSON exports: survey files in UTM coordinates in, detections in the
+same coordinates out; bad input gives a readable error and a non-zero exit, never a traceback.
+
+Hard cases named in the tests: UTM offsets (5.5e5, 4.18e6) kept to full float64 precision through
+JSON, CSV and GeoJSON; a CRS from the file (LAS) or from --crs, and the two contradicting; a survey
+tiled by the CLI; the real R2Sonic line (bare seabed, EPSG:32610); a missing file, a wrong column
+count, NaN coordinates, a missing template file, an overlap smaller than the objects, bad --params.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import re
+import shutil
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import REAL_FILE, needs_real
+
+from sonardet.cli import main
+from sonardet.io.annotations import read_detections
+from sonardet.io.export import crs_urn, write_detections_csv, write_detections_geojson
+from sonardet.io.pointcloud import PointCloud, write_points
+
+UTM = np.array([5.5e5, 4.18e6, 0.0])
+SEABED_Z = -11.5
+TEMPLATE_CFG = {"yaw_deg": [0, 60], "directions": ["x", "y"], "offsets_m": [-7.5, 0.0, 7.5], "altitude_m": 11.5}
+
+
+@pytest.fixture(scope="module")
+def results_dir(tmp_path_factory, built_objects, default_config):
+    """A results folder as the workflow writes it: objects/{cls}.json|.ply and templates/{cls}.npz
+    (templates from a reduced set of views, to keep the tests fast)."""
+    from sonardet.objects import save_object
+    from sonardet.sim.mbes import SensorConfig
+    from sonardet.sim.templates import save_templates, scan_templates
+
+    root = tmp_path_factory.mktemp("results")
+    sensor = SensorConfig.from_dict(default_config["sensor"])
+    for cls, m in built_objects.items():
+        save_object(m, default_config["objects"]["density_kg_m3"], root / "objects" / f"{cls}.ply",
+                    root / "objects" / f"{cls}.json")
+        tv = scan_templates(cls, m.mesh.vertices, m.mesh.faces, m.symmetry_order, TEMPLATE_CFG, sensor,
+                            np.random.default_rng(1))
+        save_templates(root / "templates" / f"{cls}.npz", tv)
+    return root
+
+
+@pytest.fixture(scope="module")
+def survey(built_objects, default_config):
+    """One MBES line over a flat 14 m x 14 m seabed with a tetrapod_s and a reef_cone, shifted to UTM
+    coordinates (float64): (points (N,3), [(cls, true box in UTM)])."""
+    from sonardet.geometry import quat_from_yaw, quat_to_matrix
+    from sonardet.objects import canonical_box
+    from sonardet.sim.mbes import RaycastTarget, SensorConfig, scan, straight_line
+
+    sensor = SensorConfig.from_dict(default_config["sensor"])
+    lo, hi = -2.0, 16.0
+    meshes = [(np.array([[lo, lo, SEABED_Z], [hi, lo, SEABED_Z], [hi, hi, SEABED_Z], [lo, hi, SEABED_Z]]),
+               np.array([[0, 1, 2], [0, 2, 3]]))]
+    truth = []
+    for cls, x, y, yaw in (("tetrapod_s", 6.6, 5.5, 0.7), ("reef_cone", 9.5, 7.4, 0.0)):
+        m = built_objects[cls]
+        q = quat_from_yaw(yaw)
+        v = np.asarray(m.mesh.vertices) @ quat_to_matrix(q).T
+        t = np.array([x, y, SEABED_Z - v[:, 2].min()])
+        meshes.append((v + t, np.asarray(m.mesh.faces)))
+        truth.append((cls, canonical_box(m.mesh.vertices, t, q, m.symmetry_order) + np.r_[UTM, np.zeros(4)]))
+    traj = straight_line((-1.0, 11.0), (15.0, 11.0), 0.0, sensor, -SEABED_Z)
+    xyz = scan(RaycastTarget(meshes), traj, sensor, np.random.default_rng(0)).xyz
+    xyz = xyz[np.all((xyz[:, :2] >= 0) & (xyz[:, :2] <= 14.0), axis=1)]
+    return xyz + UTM, truth
+
+
+@pytest.fixture(scope="module")
+def survey_xyz(survey, tmp_path_factory):
+    """The survey as a headerless x y z text file (full float64 precision), as hydrographic software
+    exports it."""
+    path = tmp_path_factory.mktemp("survey") / "line_0007.xyz"
+    write_points(path, PointCloud(survey[0]))
+    return path
+
+
+def _accepted(dets):
+    return [d for d in dets if d["extras"]["accepted"]]
+
+
+def _near(dets, box, tol_m):
+    return [d for d in dets if np.linalg.norm(np.subtract(d["box"][:3], box[:3])) < tol_m]
+
+
+def test_detect_writes_json_csv_geojson_in_utm(survey, survey_xyz, results_dir, tmp_path, capsys):
+    out = tmp_path / "line_0007.json"
+    rc = main(["detect", "--input", str(survey_xyz), "--out", str(out), "--csv", str(tmp_path / "d.csv"),
+               "--geojson", str(tmp_path / "d.geojson"), "--results", str(results_dir), "--crs", "EPSG:32610"])
+    assert rc == 0
+    summary = capsys.readouterr().out
+    assert summary.startswith("sonardet detect: line_0007.xyz:") and "EPSG:32610" in summary
+    # JSON: the project's reader accepts it with its default checks (scene id = file stem).
+    doc = read_detections(out)
+    assert doc["scene"] == "line_0007" and doc["method"] == "model_based_ours" and doc["crs"] == "EPSG:32610"
+    dets = doc["detections"]
+    acc = _accepted(dets)
+    assert sorted(d["cls"] for d in acc) == ["reef_cone", "tetrapod_s"]
+    for cls, box in survey[1]:
+        hit = _near(acc, box, 0.1)
+        assert len(hit) == 1 and hit[0]["cls"] == cls, f"{cls} not found within 0.1 m of {box[:3]}"
+        assert np.allclose(hit[0]["pose"]["t"][:2], box[:2], atol=0.2)  # the pose is in UTM as well
+    # CSV: one row per detection, the same float64 values (full repr, not rounded), quaternions.
+    text = (tmp_path / "d.csv").read_text()
+    assert text.startswith("# coordinates: EPSG:32610 metres, as in line_0007.xyz")
+    df = pd.read_csv(tmp_path / "d.csv", comment="#")
+    assert list(df.columns) == ["cls", "x", "y", "z", "l", "w", "h", "yaw_rad", "score", "qw", "qx", "qy", "qz"]
+    assert len(df) == len(dets)
+    for (_, row), d in zip(df.iterrows(), dets):
+        assert row["cls"] == d["cls"]
+        assert [row[c] for c in ("x", "y", "z", "l", "w", "h", "yaw_rad")] == d["box"]  # bit-identical
+        assert row["score"] == d["score"] and [row[c] for c in ("qw", "qx", "qy", "qz")] == d["pose"]["q"]
+    # GeoJSON: box footprints in UTM with the CRS named.
+    gj = json.loads((tmp_path / "d.geojson").read_text())
+    assert gj["type"] == "FeatureCollection"
+    assert gj["crs"] == {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::32610"}}
+    assert len(gj["features"]) == len(dets)
+    for f, d in zip(gj["features"], dets):
+        ring = np.array(f["geometry"]["coordinates"][0])
+        assert f["geometry"]["type"] == "Polygon" and ring.shape == (5, 2) and np.array_equal(ring[0], ring[-1])
+        assert np.allclose(ring[:4].mean(0), d["box"][:2], rtol=0, atol=1e-6)
+        assert f["properties"]["cls"] == d["cls"] and f["properties"]["z"] == d["box"][2]
+        assert ring.min(0)[0] > 5e5 and ring.min(0)[1] > 4e6
+
+
+def test_cli_tiles_a_survey_larger_than_a_tile(survey, survey_xyz, results_dir, tmp_path, caplog, capsys):
+    """--tile-m 7 cuts the 14 m survey into 2 x 2 tiles with seams near x = 7 and y = 7, which the
+    tetrapod and the cone straddle: same objects as one tile, each once."""
+    single, tiled = tmp_path / "single.json", tmp_path / "tiled.json"
+    common = ["--input", str(survey_xyz), "--results", str(results_dir), "--crs", "EPSG:32610"]
+    assert main(["detect", "--out", str(single), *common]) == 0
+    with caplog.at_level(logging.INFO):
+        assert main(["detect", "--out", str(tiled), "--tile-m", "7", "--overlap-m", "3", *common]) == 0
+    assert "tile 1/4" in caplog.text and "tile 4/4" in caplog.text
+    assert "4 tile(s)" in capsys.readouterr().out
+    a = _accepted(read_detections(single)["detections"])
+    b = _accepted(read_detections(tiled)["detections"])
+    assert len(a) == len(b) == 2
+    for d in a:
+        match = _near(b, d["box"], 0.05)
+        assert len(match) == 1 and match[0]["cls"] == d["cls"]
+
+
+def test_crs_comes_from_the_file(survey, results_dir, tmp_path, capsys):
+    las = tmp_path / "survey.las"
+    write_points(las, PointCloud(survey[0], crs="EPSG:32610"))
+    gj = tmp_path / "d.geojson"
+    assert main(["detect", "--input", str(las), "--out", str(tmp_path / "survey.json"), "--geojson", str(gj),
+                 "--results", str(results_dir), "--classes", "reef_cone", "tetrapod_s"]) == 0
+    assert json.loads(gj.read_text())["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::32610"
+    assert read_detections(tmp_path / "survey.json")["crs"] == "EPSG:32610"
+    # A --crs contradicting the file's is refused.
+    capsys.readouterr()
+    assert main(["detect", "--input", str(las), "--out", str(tmp_path / "x.json"), "--crs", "EPSG:32633",
+                 "--results", str(results_dir)]) == 2
+    err = capsys.readouterr().err
+    assert "survey.las" in err and "EPSG:32610" in err and "Traceback" not in err
+    assert not (tmp_path / "x.json").exists()
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("name,content,pattern", [
+    ("missing.xyz", None, r"missing\.xyz: no such point-cloud file"),
+    ("cols.xyz", "554800.1 4179000.2 -10.5\n554800.2 4179000.3\n", r"cols\.xyz line 2: expected 3 columns, found 2"),
+    ("cols.csv", "x,y,z\n554800.1,4179000.2,-10.5\n554800.2,4179000.3,-10.4,7\n",
+     r"cols\.csv line 3: expected 3 columns, found 4"),
+    ("nan.xyz", "554800.1 4179000.2 -10.5\n554800.2 4179000.3 -10.4\n554800.3 nan -10.4\n",
+     r"nan\.xyz line 3 .*non-finite coordinates"),
+    ("inf.xyz.gz", None, r"inf\.xyz\.gz line 2 .*non-finite"),
+    ("empty.xyz", "# header comment only\n", r"empty\.xyz: no points"),
+    ("survey.e57", "", r"survey\.e57: unsupported point-cloud suffix"),
+])
+def test_bad_input_is_a_readable_error(results_dir, tmp_path, capsys, name, content, pattern):
+    import gzip
+
+    path = tmp_path / name
+    if name == "inf.xyz.gz":
+        path.write_bytes(gzip.compress(b"554800.1 4179000.2 -10.5\n554800.2 inf -10.4\n"))
+    elif content is not None:
+        _write(path, content)
+    out = tmp_path / "o.json"
+    assert main(["detect", "--input", str(path), "--out", str(out), "--results", str(results_dir)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("sonardet detect: error: ") and "Traceback" not in err
+    assert re.search(pattern, err), err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("args,pattern", [
+    (["--overlap-m", "2"], r"overlap_m = 2 m is smaller than the largest object footprint \(2\.\d+ m\)"),
+    (["--tile-m", "0"], r"tile_m must be a positive"),
+    (["--params", '{"voxel": 0.1}'], r"unknown model-based detector parameter 'voxel'"),
+    (["--params", "{voxel"], r"--params: not valid JSON"),
+    (["--params", "[1, 2]"], r"neither a JSON object nor an existing JSON file"),
+    (["--classes", "reef_boulder"], r"objects/reef_boulder\.json: missing"),
+])
+def test_bad_options_are_readable_errors(survey_xyz, results_dir, tmp_path, capsys, args, pattern):
+    rc = main(["detect", "--input", str(survey_xyz), "--out", str(tmp_path / "o.json"), "--results",
+               str(results_dir), *args])
+    err = capsys.readouterr().err
+    assert rc == 2 and re.search(pattern, err), err
+    assert "Traceback" not in err
+
+
+def test_params_from_a_json_file(survey_xyz, results_dir, tmp_path):
+    params = _write(tmp_path / "p.json", json.dumps({"accept_min": 0.99, "keep_rejected": False}))
+    assert main(["detect", "--input", str(survey_xyz), "--out", str(tmp_path / "o.json"), "--results",
+                 str(results_dir), "--params", str(params), "--classes", "reef_cone"]) == 0
+    assert read_detections(tmp_path / "o.json")["detections"] == []  # nothing reaches a score of 0.99
+
+
+def test_missing_templates_name_the_file_and_the_make_target(survey_xyz, results_dir, tmp_path, capsys):
+    partial = tmp_path / "results"
+    shutil.copytree(results_dir / "objects", partial / "objects")
+    (partial / "templates").mkdir()
+    for cls in ("reef_cone", "tetrapod_s"):
+        shutil.copy(results_dir / "templates" / f"{cls}.npz", partial / "templates")
+    argv = ["detect", "--input", str(survey_xyz), "--out", str(tmp_path / "o.json"), "--results", str(partial)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "templates/reef_ring.npz: missing" in err
+    assert "snakemake --cores 2 results/templates/reef_ring.npz" in err and "Traceback" not in err
+    # The classes that are there can still be detected.
+    assert main(argv + ["--classes", "reef_cone", "tetrapod_s"]) == 0
+
+
+def test_console_error_exit_code_without_traceback(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "sonardet.cli", "detect", "--input", str(tmp_path / "nope.laz"),
+                           "--out", str(tmp_path / "o.json"), "--results", str(tmp_path)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    assert "sonardet detect: error:" in proc.stderr and "objects/reef_ring.json: missing" in proc.stderr
+
+
+@needs_real
+def test_real_r2sonic_line(results_dir, tmp_path, capsys):
+    """The real line (236k soundings, bare seabed with a 0.5 m pit, EPSG:32610, two 40 m tiles): runs,
+    finds at most a stray fit or two, and reports in UTM."""
+    out, csv, gj = tmp_path / "r2sonic_sfbay.json", tmp_path / "r.csv", tmp_path / "r.geojson"
+    t = time.perf_counter()
+    assert main(["detect", "--input", str(REAL_FILE), "--out", str(out), "--csv", str(csv), "--geojson", str(gj),
+                 "--results", str(results_dir), "--crs", "EPSG:32610"]) == 0
+    seconds = time.perf_counter() - t
+    summary = capsys.readouterr().out
+    assert "236287 points" in summary and "2 tile(s)" in summary
+    doc = read_detections(out)
+    assert doc["crs"] == "EPSG:32610" and doc["source"] == str(REAL_FILE)
+    dets = doc["detections"]
+    assert len(_accepted(dets)) <= 2, [(d["cls"], d["box"][:3], d["score"]) for d in dets]
+    for d in dets:  # inside the line's bounding box (README), in UTM
+        assert 554805 < d["box"][0] < 554849 and 4178984 < d["box"][1] < 4179042
+    assert len(pd.read_csv(csv, comment="#")) == len(dets)
+    assert json.loads(gj.read_text())["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::32610"
+    assert seconds < 120
+
+
+# --------------------------------------------------------------------------------------------- exports
+def _det(box, score=0.5, pose=True):
+    d = {"cls": "tetrapod_b", "box": list(box), "score": score, "extras": {"accepted": True}}
+    if pose:
+        d["pose"] = {"t": list(box[:3]), "q": [math.cos(0.3), 0.0, 0.0, math.sin(0.3)]}
+    return d
+
+
+def test_csv_keeps_full_precision_and_pose_columns_only_with_poses(tmp_path):
+    box = [554812.123456789, 4179012.987654321, -10.123456789, 2.1, 2.0, 1.9, 0.6]
+    write_detections_csv(tmp_path / "a.csv", [_det(box)])
+    df = pd.read_csv(tmp_path / "a.csv")
+    assert df["x"][0] == box[0] and df["y"][0] == box[1]  # not rounded to cm
+    assert list(df.columns)[-4:] == ["qw", "qx", "qy", "qz"]
+    write_detections_csv(tmp_path / "b.csv", [_det(box, pose=False)], origin_note="local frame")
+    lines = (tmp_path / "b.csv").read_text().splitlines()
+    assert lines[0] == "# local frame" and lines[1] == "cls,x,y,z,l,w,h,yaw_rad,score"
+    # Mixed: the columns are there, empty for the detection without a pose.
+    write_detections_csv(tmp_path / "c.csv", [_det(box), _det(box, pose=False)])
+    df = pd.read_csv(tmp_path / "c.csv")
+    assert df["qw"].isna().tolist() == [False, True]
+    write_detections_csv(tmp_path / "d.csv", [])
+    assert (tmp_path / "d.csv").read_text() == "cls,x,y,z,l,w,h,yaw_rad,score\n"
+
+
+def test_geojson_footprint_of_a_rotated_box(tmp_path):
+    box = [554812.5, 4179012.5, -10.0, 4.0, 2.0, 1.0, math.pi / 2]  # l along y after the rotation
+    doc = write_detections_geojson(tmp_path / "a.geojson", [_det(box)], crs="epsg:32610")
+    assert json.loads((tmp_path / "a.geojson").read_text()) == doc
+    ring = np.array(doc["features"][0]["geometry"]["coordinates"][0])
+    assert np.allclose(ring.max(0) - ring.min(0), [2.0, 4.0], atol=1e-9)
+    assert np.allclose(ring[:4].mean(0), box[:2], atol=1e-9)
+    x, y = ring[:, 0] - box[0], ring[:, 1] - box[1]
+    assert 0.5 * np.sum(x[:-1] * y[1:] - x[1:] * y[:-1]) == pytest.approx(8.0)  # counter-clockwise
+    props = doc["features"][0]["properties"]
+    assert props == {"cls": "tetrapod_b", "score": 0.5, "z": -10.0, "h": 1.0, "l": 4.0, "w": 2.0,
+                     "yaw": math.pi / 2, "accepted": True}
+    assert doc["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::32610"
+
+
+def test_geojson_crs_member(tmp_path, caplog):
+    assert crs_urn("EPSG:32610") == "urn:ogc:def:crs:EPSG::32610" and crs_urn(" epsg: 4326 ") == \
+        "urn:ogc:def:crs:EPSG::4326"
+    assert crs_urn("urn:ogc:def:crs:EPSG::25832") == "urn:ogc:def:crs:EPSG::25832" and crs_urn(None) is None
+    assert "crs" not in write_detections_geojson(tmp_path / "a.geojson", [], crs=None)
+    with caplog.at_level(logging.WARNING):
+        doc = write_detections_geojson(tmp_path / "b.geojson", [], crs='PROJCS["local",UNIT["metre",1]]')
+    assert "crs" not in doc and "not an EPSG code" in caplog.text
+
+
+def test_exports_refuse_non_finite_values_and_keep_the_old_file(tmp_path):
+    good = [_det([1.0, 2.0, -10.0, 2.0, 2.0, 1.0, 0.0])]
+    bad = good + [_det([np.nan, 2.0, -10.0, 2.0, 2.0, 1.0, 0.0])]
+    for writer, name in ((write_detections_csv, "a.csv"), (write_detections_geojson, "a.geojson")):
+        writer(tmp_path / name, good)
+        before = (tmp_path / name).read_bytes()
+        with pytest.raises(ValueError, match="detection 1"):
+            writer(tmp_path / name, bad)
+        assert (tmp_path / name).read_bytes() == before
+        assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
