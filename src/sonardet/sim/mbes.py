@@ -18,6 +18,9 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 import open3d as o3d
 
+from . import realism as rlz
+from .realism import RealismConfig
+
 #: Sentinel mesh id of a beam without a return (never appears in the output, documented for users).
 NO_HIT = -1
 
@@ -36,6 +39,7 @@ class SensorConfig:
     sound_speed_mps: float = 1500.0
     max_ping_rate_hz: float = 30.0
     speed_mps: float = 2.0
+    realism: RealismConfig | None = None  # optional realism profile (None: plain ray cast)
 
     def __post_init__(self):
         if self.n_beams < 1:
@@ -48,15 +52,23 @@ class SensorConfig:
             raise ValueError(f"sensor.range_sigma_m must be >= 0, got {self.range_sigma_m}")
         if self.speed_mps <= 0 or self.max_ping_rate_hz <= 0 or self.sound_speed_mps <= 0:
             raise ValueError("sensor.speed_mps, max_ping_rate_hz and sound_speed_mps must be > 0")
+        if self.realism is not None and not isinstance(self.realism, RealismConfig):
+            object.__setattr__(self, "realism", RealismConfig.from_config(self.realism))
 
     @classmethod
     def from_dict(cls, d: dict) -> "SensorConfig":
-        """Build from a config mapping, ignoring keys that are not sensor settings."""
+        """Build from a config mapping, ignoring keys that are not sensor settings; a `realism`
+        mapping becomes a :class:`~sonardet.sim.realism.RealismConfig`."""
         names = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in d.items() if k in names})
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """Settings as a plain mapping; `realism` only when one of its effects is on, so an all-off
+        profile records the same settings as none."""
+        d = asdict(self)
+        if self.realism is None or not self.realism.active:
+            d.pop("realism")
+        return d
 
 
 def beam_angles(sensor: SensorConfig) -> np.ndarray:
@@ -264,6 +276,10 @@ def scan(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rn
     the others get Gaussian range noise N(0, range_sigma_m^2) along the beam. `beams` optionally
     restricts the cast to a subset of beam indices (the others are not modelled at all). Ping
     indices in the output start at ping_offset. Output order is ping-major, beam-minor.
+
+    With `sensor.realism` holding an effect that is on, the effects of
+    :mod:`sonardet.sim.realism` apply as well (then n_rays counts every sub-ray cast); otherwise
+    the output is that of the plain ray cast, bytes included.
     """
     angles_all = beam_angles(sensor)
     beam_idx = np.arange(sensor.n_beams) if beams is None else np.asarray(beams, dtype=np.int64)
@@ -272,6 +288,9 @@ def scan(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rn
     if len(trajectory) == 0 or nb == 0:
         return Soundings(np.zeros((0, 3)), np.zeros(0, np.int32), np.zeros(0, np.int16),
                          np.zeros(0, np.int16), np.zeros(0, np.int32))
+    if sensor.realism is not None and sensor.realism.active:
+        return _scan_realistic(target, trajectory, sensor, rng, beam_idx, angles_all, ping_offset, chunk_rays,
+                               nthreads)
     cos_start = np.float32(np.cos(np.deg2rad(sensor.grazing_start_deg)))
     pings_per_chunk = max(1, chunk_rays // nb)
     parts = []
@@ -317,5 +336,108 @@ def scan(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rn
             mesh=mesh_id.reshape(npg, nb)[keep],
             n_rays=npg * nb,
             n_dropped=int(hit.sum() - len(xyz)),
+        ))
+    return Soundings.concatenate(parts)
+
+
+def _scan_realistic(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rng: np.random.Generator,
+                    beam_idx: np.ndarray, angles_all: np.ndarray, ping_offset: int, chunk_rays: int,
+                    nthreads: int) -> Soundings:
+    """:func:`scan` with the realism profile `sensor.realism`; the models and their order are those
+    of :mod:`sonardet.sim.realism`. The sensor's own dropouts and range noise draw from `rng` exactly
+    as the plain scan does; the realism effects draw from a spawned child of it."""
+    rz = sensor.realism
+    rrng = rlz.child_rng(rng)
+    angles = angles_all[beam_idx]
+    nb = len(angles)
+    half = np.deg2rad(0.5 * sensor.swath_deg)
+
+    # Per-ping attitude: true (rays) and as the georeferencing knows it.
+    lp = rlz.draw_line_params(rz, trajectory.line, rrng)
+    li = lp.index(trajectory.line)
+    t_s = rlz.ping_times_s(trajectory.position, trajectory.line, sensor.speed_mps)
+    roll_m, pitch_m, yaw_m, heave_m = rlz.motion(rz, t_s, lp.phase[li])
+    roll_true, pitch_true = lp.roll_bias[li] + roll_m, lp.pitch_bias[li] + pitch_m
+    moves = rz.motion_compensated and any(np.any(a != 0) for a in (roll_m, pitch_m, yaw_m, heave_m))
+    across_true = rlz.steered_angles(angles, rz, sensor.sound_speed_mps)
+
+    d_across, d_along, weight = rlz.subray_bundle(rz)
+    ns = len(weight)
+    if rz.detection == "auto":
+        phase_beam = np.abs(angles) > np.deg2rad(rz.detection_switch_deg)
+    else:
+        phase_beam = np.full(nb, rz.detection == "phase")
+    p_outer = rlz.outer_dropout_probability(rz, angles, half).astype(np.float32)
+    p_spike = rlz.outlier_probability(rz, angles, angles_all, half)
+    cos_start = np.float32(np.cos(np.deg2rad(sensor.grazing_start_deg)))
+    any_svp = np.any(lp.svp_k != 0)
+
+    pings_per_chunk = max(1, chunk_rays // (nb * ns))
+    parts = []
+    for p0 in range(0, len(trajectory), pings_per_chunk):
+        sl = slice(p0, p0 + pings_per_chunk)
+        pos = trajectory.position[sl]
+        heading = trajectory.heading_rad[sl]
+        lines = trajectory.line[sl]
+        npg = len(pos)
+        per_ping = (slice(None), None, None)
+        dirs = rlz.fan_directions((heading + yaw_m[sl])[per_ping], roll_true[sl][per_ping],
+                                  pitch_true[sl][per_ping], across_true[None, :, None] + d_across[None, None, :],
+                                  d_along[None, None, :])
+        rays = np.empty((npg, nb, ns, 6), dtype=np.float32)
+        rays[..., 0:3] = (pos + np.c_[np.zeros((npg, 2)), heave_m[sl]])[:, None, None, :]
+        rays[..., 3:6] = dirs
+        t, mesh_sub, normals = target.cast(rays.reshape(-1, 6), nthreads)
+        t = t.reshape(npg, nb, ns).astype(np.float64)
+        mesh_sub = mesh_sub.reshape(npg, nb, ns)
+        cos_inc = np.abs(np.einsum("pbsk,pbsk->pbs", dirs, normals.reshape(npg, nb, ns, 3)))
+        if rz.object_roughness_sigma_m > 0:
+            t = t + rlz.roughness_range_offsets(t, mesh_sub, cos_inc, rz.object_roughness_sigma_m, rrng)
+        r, pick, hit = rlz.combine_subrays(t, weight, phase_beam, first=rz.detection == "first")
+        mesh_id = np.take_along_axis(mesh_sub, pick[..., None], 2)[..., 0]
+
+        keep = hit.copy()
+        p_drop = np.full((npg, nb), np.float32(sensor.dropout_prob), dtype=np.float32)
+        if sensor.grazing_dropout_prob > 0 and cos_start > 0:
+            c = np.take_along_axis(cos_inc, pick[..., None], 2)[..., 0].astype(np.float32)
+            u = np.clip((cos_start - c) / cos_start, 0.0, 1.0)
+            p_drop += np.float32(sensor.grazing_dropout_prob) * u * u
+        p_drop += p_outer[None, :]
+        if np.any(p_drop > 0):
+            keep &= rng.random((npg, nb), dtype=np.float32) >= p_drop
+        if sensor.range_sigma_m > 0:
+            r = r + np.float32(sensor.range_sigma_m) * rng.standard_normal((npg, nb), dtype=np.float32)
+        if rz.outlier_prob > 0:
+            r = np.maximum(r + rlz.outlier_offsets((npg, nb), p_spike, rz.outlier_magnitude_m, rrng), 0.0)
+        r = rlz.quantise(r, rz.range_quantum_m)
+
+        # Georeferencing with the attitude the processing knows (nominal, or with the motion).
+        if moves:
+            geo_dir = rlz.fan_directions((heading + yaw_m[sl])[:, None], roll_m[sl][:, None], pitch_m[sl][:, None],
+                                         angles[None, :], 0.0)
+            geo_origin = pos + np.c_[np.zeros((npg, 2)), heave_m[sl]]
+        else:
+            stbd, sa, ca = _fan_geometry(Trajectory(pos, heading, lines), angles)
+            geo_dir = np.stack(np.broadcast_arrays(stbd[:, 0:1] * sa[None, :], stbd[:, 1:2] * sa[None, :],
+                                                   -ca[None, :]), axis=-1)
+            geo_origin = pos
+        with np.errstate(invalid="ignore"):
+            xyz = geo_origin[:, None, :] + r[..., None] * geo_dir
+            lj = li[sl]
+            dz = np.broadcast_to(lp.offset_m[lj][:, None], (npg, nb))
+            if any_svp:
+                cos_v = -geo_dir[..., 2]
+                dz = dz + rlz.svp_bias_dz(lp.svp_k[lj][:, None], r * cos_v, cos_v)
+            xyz[..., 2] += dz
+        ping = np.broadcast_to(np.arange(p0 + ping_offset, p0 + ping_offset + npg, dtype=np.int32)[:, None],
+                               (npg, nb))[keep]
+        parts.append(Soundings(
+            xyz=xyz[keep],
+            ping=ping,
+            beam=np.broadcast_to(beam_idx.astype(np.int16)[None, :], (npg, nb))[keep],
+            line=np.broadcast_to(lines.astype(np.int16)[:, None], (npg, nb))[keep],
+            mesh=mesh_id[keep],
+            n_rays=npg * nb * ns,
+            n_dropped=int(hit.sum() - keep.sum()),
         ))
     return Soundings.concatenate(parts)

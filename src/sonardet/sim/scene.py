@@ -6,9 +6,11 @@ is [0, extent_x] x [0, extent_y]; the seabed mesh extends beyond it so outer bea
 
 Steps (each with its own seed derived from the config seed and the scene id):
 1. seabed heightfield (fBm), 2. layout of the objects per class, 3. rocks (static clutter, partly
-buried), 4. MuJoCo settling of the objects (rocks act as fixed obstacles), 5. survey lines along
-x, y or both, 6. Embree ray casting, per line only against the geometry inside its swath
-("model only what the scene needs"), 7. annotations: pose, box, number of soundings, visibility.
+buried), 4. MuJoCo settling of the objects (rocks act as fixed obstacles), optionally followed by
+burial in the sediment (`scenes.realism.burial_m`), 5. survey lines along x, y or both, 6. Embree
+ray casting, per line only against the geometry inside its swath ("model only what the scene
+needs"), with the sensor's optional realism profile (`sensor.realism`), 7. annotations: pose, box,
+number of soundings, visibility.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from ..objects.catalog import canonical_box
 from .layout import plan_layout
 from .mbes import RaycastTarget, SensorConfig, Soundings, scan, survey_lines, swath_half_width_m
 from .physics import RigidBody, settle
+from .realism import burial_depths, swath_margin_m
 from .rocks import make_rock
 from .seabed import make_seabed
 
@@ -172,6 +175,14 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
         kept, phys = [], {"n_steps": 0, "sim_time_s": 0.0, "all_at_rest": True}
     timings["physics_s"] = time.perf_counter() - t0
 
+    # Burial: settled objects sink into the sediment (after the physics, which knows no sediment).
+    burial_m = (sc.get("realism") or {}).get("burial_m", [0.0, 0.0])
+    buried = None
+    if kept and max(burial_m) > 0:
+        buried = burial_depths([spawns[k].group for k, _, _ in kept], burial_m,
+                               np.random.default_rng(derive_seed(seed, "burial")))
+        kept = [(k, np.asarray(t, dtype=np.float64) - [0.0, 0.0, d], q) for (k, t, q), d in zip(kept, buried)]
+
     # Survey and scan.
     t0 = time.perf_counter()
     direction = str(rngs["survey"].choice(sv["directions"]))
@@ -185,6 +196,8 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
         posed.append((v, np.asarray(obj.mesh.faces), idx))
     zmin = float(hf.z.min())
     half = swath_half_width_m(sensor, sv["transducer_z_m"] - zmin)
+    cull_margin = 1.0 + swath_margin_m(sensor.realism, sv["transducer_z_m"] - zmin,
+                                       np.deg2rad(0.5 * sensor.swath_deg), sensor.sound_speed_mps)
     do_cull = sc["cull_to_swath"] if cull is None else cull
     parts, n_tri = [], 0
     lines = np.unique(traj.line)
@@ -193,7 +206,7 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
         sel = traj.line == ln
         sub = type(traj)(traj.position[sel], traj.heading_rad[sel], traj.line[sel])
         if do_cull:
-            rect = _swath_rect(traj, ln, half, 1.0)
+            rect = _swath_rect(traj, ln, half, cull_margin)
             hfc = hf.crop(*rect)
             meshes = [(hfc.vertices(), hfc.faces())]
             ids = [SEABED_ID]
@@ -236,6 +249,8 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
             "visible": bool(n_pts[idx] >= sc["min_points_visible"]),
             "arrangement": sp.arrangement, "group": int(sp.group), "layer": int(sp.layer),
         })
+        if buried is not None:
+            objs[-1]["burial_m"] = float(buried[idx])
     meta = {
         "schema_version": SCHEMA_VERSION,
         "scene": scene_id,
