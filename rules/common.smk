@@ -8,7 +8,7 @@ from snakemake.exceptions import WorkflowError
 # script inserts the same path itself (e.g. in a rule's conda env).
 sys.path.insert(0, os.path.join(workflow.basedir, "src"))
 
-from sonardet.config import ConfigError, validate_config
+from sonardet.config import ConfigError, realism_test_config, validate_config
 from sonardet.sim.dataset import make_splits, scene_ids, split_names
 
 try:
@@ -33,6 +33,9 @@ SPLIT = make_splits(
 #: Evaluation datasets: name -> scene ids, and the folder holding their scene files.
 DATASETS = {"synthetic": SPLIT["test"]}
 DATASET_DIRS = {"synthetic": "results/scenes"}
+if config["realism_test"]["enabled"]:
+    DATASETS["realism"] = SPLIT["test"]
+    DATASET_DIRS["realism"] = "results/realism/scenes"
 FRACTIONS = [int(f) for f in config["split"]["fractions"]]
 #: Methods: model_based_{variant} and sasa_{fraction}.
 METHODS = [f"model_based_{v}" for v in config["model_based"]["variants"]] + (
@@ -155,6 +158,7 @@ if config["noise"]["enabled"] and not NOISE:
 #: Report tables (stem -> caption file) and figures (name -> caption file), written by rule report.
 REPORT_TABLES = (
     ["dataset", "comparison", "fractions", "timing"]
+    + (["comparison_realism"] if "realism" in DATASETS else [])
     + (["ablation"] if ABLATION else [])
     + (["noise"] if NOISE else [])
 )

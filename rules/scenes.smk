@@ -23,6 +23,30 @@ rule simulate_scene:
         "../workflow_scripts/simulate_scene.py"
 
 
+rule simulate_scene_realism:
+    input:
+        meshes=object_files("ply"),
+        meta=object_files("json"),
+    output:
+        npz="results/realism/scenes/{scene}.npz",
+        json="results/realism/scenes/{scene}.json",
+    log:
+        "results/logs/simulate_scene_realism/{scene}.log",
+    benchmark:
+        "results/benchmarks/simulate_scene_realism/{scene}.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        config={
+            k: v
+            for k, v in realism_test_config(config).items()
+            if k in ("seed", "classes", "objects", "sensor", "scenes")
+        },
+    script:
+        "../workflow_scripts/simulate_scene.py"
+
+
 rule split:
     output:
         expand("results/splits/{name}.txt", name=SPLITS),

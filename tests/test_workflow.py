@@ -76,8 +76,9 @@ def test_detections_of_every_method(smoke_run):
     assert len(test) == 1
     for method in METHODS:
         for sid in test:
-            doc = read_detections(smoke_run / f"results/detections/{method}/synthetic/{sid}.json", CLASSES)
-            assert doc["method"] == method and doc["scene"] == sid
+            for dataset in ("synthetic", "realism"):
+                doc = read_detections(smoke_run / f"results/detections/{method}/{dataset}/{sid}.json", CLASSES)
+                assert doc["method"] == method and doc["scene"] == sid
     for variant in ("paper", "ours"):
         st = json.loads((smoke_run / f"results/stats/model_based_{variant}/synthetic/{test[0]}.json").read_text())
         assert st["variant"] == variant and st["n_points"] > 1000 and st["seconds"]["total"] > 0
@@ -97,12 +98,27 @@ def test_sasa_training_outputs(smoke_run):
 
 def test_metrics_of_every_method(smoke_run):
     for method in METHODS:
-        m = json.loads((smoke_run / f"results/eval/{method}/synthetic/metrics.json").read_text())
-        assert 0.0 <= m["mAP_headline"] <= 1.0 + 1e-9  # the devkit's normalisation rounds, as ours
-        assert sum(m["per_class"][c]["n_gt"] for c in CLASSES) >= 5
+        for dataset in ("synthetic", "realism"):
+            m = json.loads((smoke_run / f"results/eval/{method}/{dataset}/metrics.json").read_text())
+            assert 0.0 <= m["mAP_headline"] <= 1.0 + 1e-9  # the devkit's normalisation rounds, as ours
+            assert sum(m["per_class"][c]["n_gt"] for c in CLASSES) >= 5
     # The model-based detector needs no training: it must find the smoke scene's objects.
     ours = json.loads((smoke_run / "results/eval/model_based_ours/synthetic/metrics.json").read_text())
     assert ours["mAP_headline"] >= 0.6, ours["mAP_headline"]
+
+
+def test_realism_scenes_share_the_layout(smoke_run):
+    """The realism test set re-surveys the test scenes: same objects, classes and x, y; objects sunk by
+    at most burial_m; other soundings."""
+    sid = _test_scenes(smoke_run)[0]
+    a = json.loads((smoke_run / f"results/scenes/{sid}.json").read_text())
+    b = json.loads((smoke_run / f"results/realism/scenes/{sid}.json").read_text())
+    assert [o["cls"] for o in a["objects"]] == [o["cls"] for o in b["objects"]]
+    for oa, ob in zip(a["objects"], b["objects"]):
+        assert np.allclose(oa["box"][:2], ob["box"][:2]) and 0.0 <= oa["box"][2] - ob["box"][2] <= 0.1 + 1e-9
+    pa = np.load(smoke_run / f"results/scenes/{sid}.npz")["xyz"]
+    pb = np.load(smoke_run / f"results/realism/scenes/{sid}.npz")["xyz"]
+    assert pa.shape != pb.shape or not np.array_equal(pa, pb)
 
 
 def test_ablation_points_and_reference(smoke_run):
@@ -124,7 +140,8 @@ def test_report_tables_and_figures(smoke_run):
     from sonardet.report import image_is_informative
 
     tables = smoke_run / "results/report/tables"
-    expected_rows = {"dataset": 3, "comparison": len(METHODS) + 2, "fractions": len(METHODS),
+    expected_rows = {"dataset": 3, "comparison": len(METHODS) + 2, "comparison_realism": len(METHODS) + 2,
+                     "fractions": len(METHODS),
                      "ablation": 2 + len(METHODS)}
     if REAL_FILE is not None:
         expected_rows["noise"] = 3  # two real patches and the simulator
@@ -167,7 +184,9 @@ def test_threshold_change_reruns_only_its_jobs(smoke_run):
                           cwd=smoke_run, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     jobs = _job_counts(proc.stdout + proc.stderr)
-    assert jobs == {"detect_model_based": 1, "evaluate": 1, "ablation_reference": 1, "report": 1, "all": 1}, jobs
+    # Only the changed variant's detections (synthetic and realism test sets), their evaluations and
+    # what reads them.
+    assert jobs == {"detect_model_based": 2, "evaluate": 2, "ablation_reference": 1, "report": 1, "all": 1}, jobs
 
 
 def _job_counts(text: str) -> dict:

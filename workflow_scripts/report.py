@@ -22,8 +22,20 @@ with rule_logging(snakemake, "report") as log:  # noqa: F821
         """The paths of `method` among results/{kind}/{method}/... files (method = parent `level` up)."""
         return [p for p in paths if Path(p).parents[level - 1].name == method]
 
-    metrics = {m: of(m, smk.input.metrics)[0] for m in methods}
+    def metrics_on(dataset):
+        """method -> results/eval/{method}/{dataset}/metrics.json"""
+        return {m: next(p for p in smk.input.metrics if Path(p).parent.name == dataset
+                        and Path(p).parents[1].name == m) for m in methods}
+
+    metrics = metrics_on("synthetic")
     tables = {"dataset": rp.dataset_table(smk.input.dataset), "comparison": rp.comparison_table(metrics, classes)}
+    if "comparison_realism" in smk.params.tables:
+        real = rp.comparison_table(metrics_on("realism"), classes, study=False)
+        # For reference only: the study measured these on real Baltic Sea sonar, not on our realism set.
+        study = pd.DataFrame([{"method": "model-based (study, real sonar)", "source": "source study"},
+                              {"method": "SASA (study, real sonar)", "source": "source study"}])
+        study[real.columns[2]] = [0.83, 0.40]
+        tables["comparison_realism"] = pd.concat([real, study], ignore_index=True)
     sasa = [m for m in methods if m.startswith("sasa_")]
     train = {m: of(m, smk.input.training, 1)[0] for m in sasa}
     tables["fractions"] = rp.fraction_table(train, metrics, scenes_dir=Path(smk.input.scenes[0]).parent)

@@ -130,6 +130,17 @@ def _cross_checks(cfg: dict) -> list[str]:
         out.append(f"evaluation.headline_m: {ev['headline_m']} is not one of evaluation.dist_thresholds_m "
                    f"{ev['dist_thresholds_m']}")
     out += _detector_checks(cfg)
+    rt = cfg["realism_test"]
+    if rt["enabled"]:
+        derived = realism_test_config(cfg)
+        derived["realism_test"] = {"enabled": False}
+        try:
+            validate_config(derived, source="realism_test")
+        except ConfigError as exc:
+            for line in str(exc).splitlines():
+                if line.startswith("  - "):
+                    out.append(line[4:].replace("sensor.realism", "realism_test.sensor")
+                               .replace("scenes.realism.burial_m", "realism_test.burial_m"))
     if cfg["split"]["n_test"] >= sc["n_scenes"]:
         out.append(f"split.n_test: {cfg['split']['n_test']} test scenes leave none of the "
                    f"{sc['n_scenes']} scenes (scenes.n_scenes) for training")
@@ -170,6 +181,16 @@ def _detector_checks(cfg: dict) -> list[str]:
                 sasa.resolve_params({**s["params"], **pt.get("params", {})}, base)
         except (ValueError, TypeError) as exc:
             out.append(f"{where}: {exc}")
+    return out
+
+
+def realism_test_config(cfg: dict) -> dict:
+    """The scene config of the realism test set: `cfg` with `realism_test.sensor` as the sensor's
+    realism profile and `realism_test.burial_m` as the scenes' burial (same seeds, so the same
+    seabeds, objects and poses as the synthetic scenes)."""
+    out = copy.deepcopy(cfg)
+    out["sensor"]["realism"] = copy.deepcopy(cfg["realism_test"]["sensor"])
+    out["scenes"]["realism"] = {"burial_m": list(cfg["realism_test"]["burial_m"])}
     return out
 
 
