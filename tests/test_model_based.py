@@ -247,3 +247,73 @@ def test_windows_cover_the_area_and_count_points():
     exact = [int(np.sum((xy[:, 0] >= w[0]) & (xy[:, 0] < w[2]) & (xy[:, 1] >= w[1]) & (xy[:, 1] < w[3])))
              for w in wins]
     assert np.all(np.abs(counts - exact) <= 0.05 * np.maximum(exact, 20))
+
+
+def test_paper_duplicates_keep_stacked_objects_and_drop_parts_of_larger_ones():
+    """Paper duplicate removal: an upper object of a pile, centred over the gap below (0.8 m off its
+    neighbour), survives; a fit of another class inside a better-scored ring's footprint (a small
+    template on the ring's rim) is a duplicate; so is a fit of the same class closer than
+    duplicate_dist_m."""
+    from sonardet.detect.model_based.paper import is_duplicate
+    from sonardet.detect.model_based.scoring import Hypothesis
+
+    p = resolve_params(None, "paper")
+    radius = {"reef_ring": 1.34, "tetrapod_s": 0.93}
+
+    def hyp(cls, x):
+        return Hypothesis(cls=cls, R=np.eye(3), t=np.zeros(3), box=np.array([x, 0.0, -11.0, 1.0, 1.0, 1.0, 0.0]))
+
+    lower = hyp("tetrapod_s", 0.0)
+    assert not is_duplicate(hyp("tetrapod_s", 0.8), [lower], radius, p)
+    assert is_duplicate(hyp("tetrapod_s", 0.9 * p["duplicate_dist_m"]), [lower], radius, p)
+    ring = hyp("reef_ring", 0.0)
+    rim = p["duplicate_other_class_frac"] * radius["reef_ring"]
+    assert is_duplicate(hyp("tetrapod_s", 0.95 * rim), [ring], radius, p)
+    assert not is_duplicate(hyp("tetrapod_s", 1.05 * rim), [ring], radius, p)
+    # The other class's radius sets the limit: a ring next to a better-scored small tetrapod.
+    assert not is_duplicate(hyp("reef_ring", 0.95 * rim), [lower], radius, p)
+    assert is_duplicate(hyp("reef_ring", 0.95 * p["duplicate_other_class_frac"] * radius["tetrapod_s"]), [lower],
+                        radius, p)
+
+
+def test_paper_refinement_and_tight_fitness(templates):
+    """ICP refinement from a 5 cm / 3 deg offset of an exact copy recovers the pose, with fitness and
+    RMSE measured at icp_max_corr_m; off (0 iterations) it returns the fit unchanged. Tight fitness is
+    1 for the aligned template and drops when it is shifted by more than score_corr_m."""
+    from scipy.spatial import cKDTree
+
+    from sonardet.detect.model_based.paper import refine_point_to_point, thin, tight_fitness
+    from sonardet.detect.model_based.registration import IcpResult
+
+    p = resolve_params(None, "paper")
+    tpl = thin(np.asarray(templates["tetrapod_s"].points(0), dtype=np.float64), p["template_voxel_m"])
+    R_true, t_true = quat_to_matrix(quat_from_yaw(0.4)), np.array([3.0, 2.0, -11.0])
+    window = tpl @ R_true.T + t_true
+    start = IcpResult(quat_to_matrix(quat_from_yaw(0.45)), t_true + [0.05, -0.03, 0.02], 0.0, 1.0)
+    res = refine_point_to_point(tpl, window, start, p)
+    assert np.allclose(res.t, t_true, atol=0.01) and np.allclose(res.R, R_true, atol=0.01)
+    assert res.fitness == pytest.approx(1.0) and res.rmse_m < 0.01
+    assert refine_point_to_point(tpl, window, start, dict(p, icp_refine_iter=0)) is start
+    tree = cKDTree(window)
+    assert tight_fitness(tpl, tree, res, p["score_corr_m"]) == pytest.approx(1.0)
+    shifted = IcpResult(res.R, res.t + [3 * p["score_corr_m"], 0.0, 0.0], 1.0, 0.0)
+    assert tight_fitness(tpl, tree, shifted, p["score_corr_m"]) < 0.5
+    assert tight_fitness(np.zeros((0, 3)), tree, res, p["score_corr_m"]) == 0.0
+
+
+def test_paper_ring_alone_gives_one_detection(objects, templates, sensor):
+    """A ring alone: the smaller templates fitted to parts of its rim are duplicates of it, not objects."""
+    ring = objects["reef_ring"]
+    t, q = place(ring, 7.0, 6.5, 0.0)
+    xyz = survey([(ring, t, q)], sensor)
+    dets, _ = detect(xyz, templates, objects, variant="paper")
+    truth = canonical_box(ring.mesh.vertices, t, q, 0)
+    near = [d for d in dets if np.hypot(*(np.asarray(d["box"][:2]) - truth[:2])) < 2.5]
+    assert [d["cls"] for d in near] == ["reef_ring"]
+    assert np.hypot(*(np.asarray(near[0]["box"][:2]) - truth[:2])) < 0.1
+
+
+def test_paper_unknown_score_is_a_clear_error(objects, templates, sensor):
+    xyz = survey([], sensor, extent_m=8.0)
+    with pytest.raises(ValueError, match="score"):
+        detect(xyz, templates, objects, {"score": "best"}, variant="paper")

@@ -8,12 +8,19 @@
    than `window_min_thickness_m`: seabed, a planar patch) are not registered (degenerate input);
 3. registration: one template view per class (`template_view`: the nadir view at yaw 0), without its
    points lower than `ground_min_height_m` above its base (the seabed removal takes those from a
-   scan too), moved onto the window's points by centroid alignment + point-to-point ICP;
+   scan too), moved onto the window's points by centroid alignment + point-to-point ICP
+   (`icp_max_corr_m`), then, when `icp_refine_iter` > 0, the same ICP continued with the tighter
+   correspondence distance `icp_refine_corr_m` (so points of neighbouring objects in the window stop
+   pulling the template off the object it has locked on); RMSE and fitness are those at `icp_max_corr_m`;
 4. acceptance: inlier RMSE <= `rmse_max_m[cls]` and fitness >= `fitness_min`; score =
-   1 - rmse / rmse_max (`score` 'rmse': the RMSE relative to the class threshold ranks, as the study
-   ranks by RMSE) or fitness * (1 - rmse / rmse_max) ('fitness_rmse');
-5. duplicates: across classes, detections whose box centres are closer than `duplicate_dist_m` keep
-   only the best score.
+   1 - rmse / rmse_max ('rmse': the study ranks by RMSE), fitness * (1 - rmse / rmse_max)
+   ('fitness_rmse') or the share of template points within `score_corr_m` of a window point
+   ('tight_fitness': how closely the template lies on the scan, comparable across classes);
+5. duplicates: detections are taken by descending score; one is dropped when a kept detection of its
+   class is closer than `duplicate_dist_m` (small enough that a stacked object, centred over the gap
+   between the two below it, survives) or a kept detection of another class is closer than
+   `duplicate_other_class_frac` x that class's radius (a smaller template fitted to part of a larger
+   object: objects of different classes are not stacked).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import open3d as o3d
 from scipy.spatial import cKDTree
 
 from ...geometry import matrix_to_quat
@@ -28,8 +36,10 @@ from ...objects.catalog import canonical_box
 from .ground import seabed
 from .params import per_class
 from .proposals import sliding_windows, window_counts
-from .registration import icp_point_to_point
+from .registration import IcpResult, _pcd, _valid_transform, icp_point_to_point
 from .scoring import Hypothesis
+
+SCORES = ("rmse", "fitness_rmse", "tight_fitness")
 
 
 def paper_template(model, which: str, tv_meta=None) -> list:
@@ -53,8 +63,53 @@ def thin(points: np.ndarray, voxel_m: float) -> np.ndarray:
     return points[np.sort(first)]
 
 
+def refine_point_to_point(template: np.ndarray, window: np.ndarray, res: IcpResult, p: dict) -> IcpResult:
+    """Continue a point-to-point ICP fit of `template` (canonical, (K,3)) on `window` ((M,3), scene
+    frame) with the correspondence distance `icp_refine_corr_m` for `icp_refine_iter` iterations.
+
+    Returns the refined pose with fitness and inlier RMSE (m) evaluated at `icp_max_corr_m` (the
+    distance the RMSE thresholds are set for), or `res` unchanged when the refinement is off or
+    finds fewer than 3 correspondences or an invalid transform.
+    """
+    if p["icp_refine_iter"] <= 0 or p["icp_refine_corr_m"] <= 0:
+        return res
+    reg = o3d.pipelines.registration
+    src, tgt = _pcd(template), _pcd(window)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = res.R, res.t
+    r = reg.registration_icp(src, tgt, float(p["icp_refine_corr_m"]), T, reg.TransformationEstimationPointToPoint(),
+                             reg.ICPConvergenceCriteria(1e-6, 1e-6, int(p["icp_refine_iter"])))
+    T = np.asarray(r.transformation)
+    if len(r.correspondence_set) < 3 or not _valid_transform(T):
+        return res
+    ev = reg.evaluate_registration(src, tgt, float(p["icp_max_corr_m"]), T)
+    return IcpResult(T[:3, :3].copy(), T[:3, 3].copy(), float(ev.fitness), float(ev.inlier_rmse))
+
+
+def tight_fitness(template: np.ndarray, window_tree: cKDTree, res: IcpResult, dist_m: float) -> float:
+    """Share (0..1) of the posed template's points (K,3, canonical) with a window point within `dist_m` (m)."""
+    if len(template) == 0:
+        return 0.0
+    d, _ = window_tree.query(template @ res.R.T + res.t, k=1, distance_upper_bound=dist_m)
+    return float(np.mean(d < dist_m))
+
+
+def is_duplicate(h, kept: list, radius_m: dict, p: dict) -> bool:
+    """Whether hypothesis `h` duplicates one of the `kept` (better-scored) ones (see the module doc, step 5)."""
+    for k in kept:
+        d = float(np.hypot(*(h.box[:2] - k.box[:2])))
+        lim = p["duplicate_dist_m"]
+        if k.cls != h.cls:
+            lim = max(lim, p["duplicate_other_class_frac"] * radius_m[k.cls])
+        if d < lim:
+            return True
+    return False
+
+
 def detect_paper(xyz: np.ndarray, models: dict, p: dict, stats: dict) -> list:
     """Run the paper pipeline on local-frame points (N,3); returns scored Hypothesis objects."""
+    if p["score"] not in SCORES:
+        raise ValueError(f"paper parameter 'score' must be one of {SCORES}, got {p['score']!r}")
     t = time.perf_counter()
     hab = seabed(xyz, p).hab
     pts = xyz[hab > p["ground_min_height_m"]]
@@ -93,24 +148,36 @@ def detect_paper(xyz: np.ndarray, models: dict, p: dict, stats: dict) -> list:
                 if res is None:
                     stats["icp_declined"] += 1
                     continue
-                if best is None or res.rmse_m < best.rmse_m:
-                    best = res
+                res = refine_point_to_point(tpl, window, res, p)
+                if best is None or res.rmse_m < best[0].rmse_m:
+                    best = (res, tpl)
             stats["seconds"]["registration"] += time.perf_counter() - t
-            if best is None or not (0 < best.rmse_m <= rmse_max) or best.fitness < p["fitness_min"]:
+            if best is None or not (0 < best[0].rmse_m <= rmse_max) or best[0].fitness < p["fitness_min"]:
                 continue
+            t = time.perf_counter()
+            best, tpl = best
             box = canonical_box(m.vertices, best.t, matrix_to_quat(best.R), m.symmetry_order)
             rel = 1.0 - best.rmse_m / rmse_max
-            score = rel if p["score"] == "rmse" else best.fitness * rel
+            f_t = 0.0
+            if p["score"] == "rmse":
+                score = rel
+            elif p["score"] == "fitness_rmse":
+                score = best.fitness * rel
+            else:
+                f_t = tight_fitness(tpl, cKDTree(window), best, p["score_corr_m"])
+                score = f_t
             h = Hypothesis(cls=cls, R=best.R, t=best.t, box=box, rmse_m=best.rmse_m, fitness=best.fitness,
-                           score=float(score))
+                           f_t=f_t, score=float(score))
+            stats["seconds"]["scoring"] += time.perf_counter() - t
             h.accepted = True
             dets.append(h)
     stats["hypotheses"] += len(dets)
     t = time.perf_counter()
     dets.sort(key=lambda h: -h.score)
     kept = []
+    radius_m = {cls: m.radius_m for cls, m in models.items()}
     for h in dets:
-        if all(np.hypot(*(h.box[:2] - k.box[:2])) >= p["duplicate_dist_m"] for k in kept):
+        if not is_duplicate(h, kept, radius_m, p):
             kept.append(h)
     stats["seconds"]["selection"] += time.perf_counter() - t
     return kept
