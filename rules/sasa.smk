@@ -15,6 +15,8 @@ rule sasa_train:
         "results/logs/sasa_train/{fraction}.log",
     benchmark:
         "results/benchmarks/sasa_train/{fraction}.tsv"
+    # The 100 % training is the DAG's longest job: start trainings as soon as their scenes exist.
+    priority: 10
     conda:
         "../environment.yml"
     threads: config["sasa"]["threads"]
