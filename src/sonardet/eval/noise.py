@@ -28,7 +28,7 @@ import trimesh
 from matplotlib.path import Path as MplPath
 from scipy import stats
 
-from sonardet.io.origin import LOCAL_LIMIT_M, choose_origin
+from sonardet.io.origin import LOCAL_LIMIT_M, choose_origin, finite_xyz
 
 __all__ = [
     "ARRAY_KEYS",
@@ -50,24 +50,6 @@ MAD_TO_SIGMA = 1.4826
 ARRAY_KEYS = ("distances_m", "kept_mask")
 # Re-selection rounds of the inlier set after the first least-squares refinement.
 _MAX_REFINE_ROUNDS = 10
-
-
-def _check_xyz(xyz) -> np.ndarray:
-    """(N, 3) float64 view/copy of ``xyz``; raise naming the first non-finite row."""
-    arr = np.asarray(xyz)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"xyz: expected an (N, 3) array of x, y, z in metres, got shape {arr.shape}")
-    if arr.dtype.kind not in "fiu":
-        raise ValueError(f"xyz: expected numeric coordinates, got dtype {arr.dtype}")
-    arr = arr.astype(np.float64, copy=False)
-    bad = ~np.isfinite(arr).all(axis=1)
-    if bad.any():
-        row = int(np.argmax(bad))
-        raise ValueError(
-            f"xyz row {row} (0-based) has non-finite coordinates {arr[row].tolist()} "
-            f"({int(bad.sum())} row(s) affected); remove those points first"
-        )
-    return arr
 
 
 def _local_origin(xyz: np.ndarray) -> np.ndarray:
@@ -152,7 +134,7 @@ def select_patch(xyz, patch: dict) -> np.ndarray:
     tested. Georeferenced coordinates are shifted to a local origin in float64 before the polygon
     test. Raises ``ValueError`` for a malformed patch or non-finite points (naming the row).
     """
-    pts = _check_xyz(xyz)
+    pts = finite_xyz(xyz)
     if _patch_kind(patch) == "box":
         x0, x1 = _interval(patch, "x")
         y0, y1 = _interval(patch, "y")
@@ -246,7 +228,7 @@ def characterize_noise(
     settings, fewer than ``MIN_POINTS`` (50) points in the patch (naming the patch and the count)
     or collinear/coincident patch points (no plane).
     """
-    pts = _check_xyz(xyz)
+    pts = finite_xyz(xyz)
     if patch is not None and not name:
         name = str(patch.get("name", "")) if isinstance(patch, dict) else ""
     label = _describe(patch, name)

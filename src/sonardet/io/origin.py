@@ -64,6 +64,21 @@ def _as_xyz(xyz: ArrayLike, what: str = "xyz") -> np.ndarray:
     return arr
 
 
+def finite_xyz(xyz: ArrayLike, what: str = "xyz") -> np.ndarray:
+    """``xyz`` as an (N, 3) float64 array (no copy when it already is one); raise ValueError on a
+    wrong shape or dtype and, naming the first row and the count, on NaN/Inf coordinates."""
+    arr = np.asarray(xyz)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{what} must be an (N,3) array of x, y, z in metres, got shape {arr.shape}")
+    arr = _as_xyz(arr, what).astype(np.float64, copy=False)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise ValueError(f"{what} row {row} (0-based) holds NaN/Inf coordinates {arr[row].tolist()} "
+                         f"({int(bad.sum())} row(s) affected); drop those points first")
+    return arr
+
+
 def _as_origin(origin: ArrayLike) -> np.ndarray:
     """Return ``origin`` as a finite float64 (3,) array; raise with the fix otherwise."""
     org = np.asarray(origin)

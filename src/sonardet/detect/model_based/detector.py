@@ -22,7 +22,7 @@ import warnings
 import numpy as np
 import open3d as o3d
 
-from ...io.origin import choose_origin
+from ...io.origin import choose_origin, finite_xyz
 from .models import ClassModel, build_class_model
 from .ours import detect_ours
 from .paper import detect_paper
@@ -75,21 +75,6 @@ def class_models(templates: dict, objects: dict, p: dict) -> dict[str, ClassMode
     return out
 
 
-def _check_points(xyz) -> np.ndarray | None:
-    a = np.asarray(xyz)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise ValueError(f"xyz must be an (N,3) array of x, y, z in metres, got shape {a.shape}")
-    if a.dtype.kind not in "fiu":
-        raise ValueError(f"xyz must be numeric, got dtype {a.dtype}")
-    a = a.astype(np.float64, copy=False)
-    bad = ~np.isfinite(a).all(1)
-    if bad.any():
-        first = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"xyz holds {int(bad.sum())} point(s) with NaN/Inf (first at row {first}); "
-                         "drop them before detection")
-    return a
-
-
 def detect(xyz: np.ndarray, templates: dict, objects: dict, params: dict | None = None,
            variant: str = "ours") -> tuple[list[dict], dict]:
     """Detect reef elements in a point cloud with the model-based pipeline.
@@ -117,7 +102,7 @@ def detect(xyz: np.ndarray, templates: dict, objects: dict, params: dict | None 
     stats = new_stats(variant)
     if not objects:
         raise ValueError("objects is empty: give at least one class to detect")
-    a = _check_points(xyz)
+    a = finite_xyz(xyz)
     t = time.perf_counter()
     models = class_models(templates, objects, p)
     stats["seconds"]["models"] += time.perf_counter() - t

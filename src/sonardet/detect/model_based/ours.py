@@ -299,6 +299,23 @@ def _near_boxes(accepted, xy, radius):
     return [a.box for a in accepted if np.hypot(*(a.box[:2] - xy)) < radius + 0.5 * np.hypot(a.box[3], a.box[4])]
 
 
+def _screened_crop(st, cls, m, xy, p, stats, tried: list):
+    """The candidate points around a proposal of class `cls` at `xy`, or None (counted in `stats`)
+    when they are too few or too low for the class, or when the same class was already tried there on
+    the very same points (an earlier round would give the same fit). Records the try in `tried`."""
+    stats["windows"] += 1
+    crop = _crop(st, xy, m.radius_m + p["crop_margin_m"])
+    if len(crop) < max(p["icp_min_points_n"], p["proposal_min_points_frac"] * m.median_view_n) \
+            or st.hab[crop].max() < p["proposal_min_height_frac"] * m.height_m:
+        stats["windows_skipped"] += 1
+        return None
+    if any(c == cls and n == len(crop) and np.hypot(*(xy - q)) < p["proposal_merge_m"] for c, q, n in tried):
+        stats["proposals_repeated"] += 1
+        return None
+    tried.append((cls, xy, len(crop)))
+    return crop
+
+
 def _hypotheses_upright(st, models, targets, proposals, p, rnd, accepted, stats):
     """Upright hypotheses: coarse ICP of every proposal from its starts (seabed/top-aligned heights x
     yaws), class competition among nearby proposals on the coarse quality, shifted restarts and fine
@@ -306,17 +323,9 @@ def _hypotheses_upright(st, models, targets, proposals, p, rnd, accepted, stats)
     jobs = []
     for cls, xy, yaw, _ in proposals:
         m = models[cls]
-        stats["windows"] += 1
-        crop = _crop(st, xy, m.radius_m + p["crop_margin_m"])
-        if len(crop) < max(p["icp_min_points_n"], p["proposal_min_points_frac"] * m.median_view_n) \
-                or st.hab[crop].max() < p["proposal_min_height_frac"] * m.height_m:
-            stats["windows_skipped"] += 1
+        crop = _screened_crop(st, cls, m, xy, p, stats, st.tried)
+        if crop is None:
             continue
-        # A proposal already fitted in an earlier round on the very same points would give the same fit.
-        if any(c == cls and n == len(crop) and np.hypot(*(xy - q)) < p["proposal_merge_m"] for c, q, n in st.tried):
-            stats["proposals_repeated"] += 1
-            continue
-        st.tried.append((cls, xy, len(crop)))
         n_yaw = 1 if m.symmetric else max(1, int(p["n_yaw_init"]))
         yaws = [yaw + k * m.yaw_period_rad / n_yaw for k in range(n_yaw)]
         job = _Job(st, m, targets[cls], crop, p, f"upright{rnd}", _near_boxes(accepted, xy, m.radius_m + 0.5), xy)
@@ -390,17 +399,9 @@ def _hypotheses_tumbled(st, models, targets, p, rnd, accepted, stats):
                 rots = tumbled_rotations(m)
                 if not rots:
                     continue
-                stats["windows"] += 1
-                crop = _crop(st, xy, m.radius_m + p["crop_margin_m"])
-                if len(crop) < max(p["icp_min_points_n"], p["proposal_min_points_frac"] * m.median_view_n) \
-                        or st.hab[crop].max() < p["proposal_min_height_frac"] * m.height_m:
-                    stats["windows_skipped"] += 1
+                crop = _screened_crop(st, cls, m, xy, p, stats, st.tried_tumbled)
+                if crop is None:
                     continue
-                if any(c == cls and n == len(crop) and np.hypot(*(xy - q)) < p["proposal_merge_m"]
-                       for c, q, n in st.tried_tumbled):
-                    stats["proposals_repeated"] += 1
-                    continue
-                st.tried_tumbled.append((cls, xy, len(crop)))
                 zg = float(st.ground.z_at(xy[0], xy[1]))
                 ztop = float(st.pts[crop, 2].max())
                 crop_h = float(st.hab[crop].max())
