@@ -12,6 +12,9 @@ A scene (``scenes/{id}.npz`` + ``scenes/{id}.json``) becomes a :class:`PreparedS
 
 :func:`sample_points` draws the fixed ``n_points`` (without replacement; a scene with fewer points is
 padded by resampling with a warning). :func:`augment` applies the training augmentation in numpy.
+With ``dr_enabled``, training scenes go through :func:`domain_randomise` instead of
+:func:`sample_points`: randomised sensor effects on the kept points (the ground grid of step 1 is kept
+in ``PreparedScene.meta["ground_grid"]`` for it), then a weighted sample (see config.py).
 """
 
 from __future__ import annotations
@@ -32,8 +35,9 @@ from ...sim.scene import load_scene_points
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PreparedScene", "ground_height", "prepare_points", "prepare_scene", "scene_paths", "sample_points",
-           "augment", "canonicalize_boxes", "collate", "PaddingWarning", "wrap_yaw"]
+__all__ = ["PreparedScene", "ground_grid", "ground_at", "ground_height", "prepare_points", "prepare_scene",
+           "scene_paths", "sample_points", "augment", "canonicalize_boxes", "collate", "PaddingWarning", "wrap_yaw",
+           "DomainRandomised", "domain_randomise", "dr_z_field", "dr_density_weight", "weighted_sample"]
 
 
 class PaddingWarning(UserWarning):
@@ -74,15 +78,9 @@ def wrap_yaw(yaw, period: float = 2 * math.pi):
     return (np.asarray(yaw) + 0.5 * period) % period - 0.5 * period
 
 
-def ground_height(xyz: np.ndarray, cell_m: float) -> np.ndarray:
-    """Ground elevation (m) under each point (N,) from the grid minimum (cell ``cell_m``, bilinear).
-
-    Args:
-        xyz: (N, 3) float array (m), N >= 1.
-        cell_m: cell size (m).
-    Returns:
-        (N,) float64 ground z at every point's (x, y).
-    """
+def ground_grid(xyz: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The grid-minimum ground estimate: (lo (2,) float64 x, y of the grid corner (m), grid (nx, ny)
+    float64 minimum z per ``cell_m`` cell, empty cells filled from the nearest filled one)."""
     xy = xyz[:, :2].astype(np.float64)
     lo = xy.min(axis=0)
     ij = np.floor((xy - lo) / cell_m).astype(np.int64)
@@ -93,8 +91,26 @@ def ground_height(xyz: np.ndarray, cell_m: float) -> np.ndarray:
     if empty.any():
         _, idx = ndimage.distance_transform_edt(empty, return_distances=True, return_indices=True)
         grid = grid[tuple(idx)]
-    u = (xy - lo) / cell_m - 0.5  # cell-centre coordinates
+    return lo, grid
+
+
+def ground_at(lo: np.ndarray, grid: np.ndarray, cell_m: float, xy: np.ndarray) -> np.ndarray:
+    """Ground z (m, (n,) float64) at points xy (n, 2) of a :func:`ground_grid` (bilinear between cell centres)."""
+    u = (np.asarray(xy, dtype=np.float64) - lo) / cell_m - 0.5  # cell-centre coordinates
     return ndimage.map_coordinates(grid, [u[:, 0], u[:, 1]], order=1, mode="nearest")
+
+
+def ground_height(xyz: np.ndarray, cell_m: float) -> np.ndarray:
+    """Ground elevation (m) under each point (N,) from the grid minimum (cell ``cell_m``, bilinear).
+
+    Args:
+        xyz: (N, 3) float array (m), N >= 1.
+        cell_m: cell size (m).
+    Returns:
+        (N,) float64 ground z at every point's (x, y).
+    """
+    lo, grid = ground_grid(xyz, cell_m)
+    return ground_at(lo, grid, cell_m, xyz[:, :2].astype(np.float64))
 
 
 def prepare_points(xyz: np.ndarray, params: dict, origin: np.ndarray | None = None):
@@ -102,10 +118,18 @@ def prepare_points(xyz: np.ndarray, params: dict, origin: np.ndarray | None = No
 
     Returns (keep (N,) bool, local xyz (M, 3) float32, height (M,) float32, origin (3,) float64).
     """
+    keep, local, h, origin, _ = _prepare_points(xyz, params, origin)
+    return keep, local, h, origin
+
+
+def _prepare_points(xyz: np.ndarray, params: dict, origin: np.ndarray | None = None):
+    """:func:`prepare_points` plus the ground grid in the local frame ({"lo", "z", "cell_m"})."""
     xyz = np.asarray(xyz, dtype=np.float64)
     if xyz.ndim != 2 or xyz.shape[1] != 3 or len(xyz) == 0:
         raise ValueError(f"points must be a non-empty (N, 3) array, got shape {xyz.shape}")
-    ground = ground_height(xyz, float(params["ground_cell_m"]))
+    cell = float(params["ground_cell_m"])
+    lo, grid = ground_grid(xyz, cell)
+    ground = ground_at(lo, grid, cell, xyz[:, :2].astype(np.float64))
     h = xyz[:, 2] - ground
     if params["ground_filter"]:
         keep = h > float(params["ground_height_m"])
@@ -117,7 +141,8 @@ def prepare_points(xyz: np.ndarray, params: dict, origin: np.ndarray | None = No
         lo, hi = xyz[:, :2].min(axis=0), xyz[:, :2].max(axis=0)
         origin = np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), float(np.median(ground))])
     local = (xyz[keep] - origin).astype(np.float32)
-    return keep, local, h[keep].astype(np.float32), origin
+    gg = {"lo": lo - origin[:2], "hi": xyz[:, :2].max(axis=0) - origin[:2], "z": grid - origin[2], "cell_m": cell}
+    return keep, local, h[keep].astype(np.float32), origin, gg
 
 
 def scene_paths(path) -> tuple[Path, Path]:
@@ -131,7 +156,7 @@ def prepare_scene(path, params: dict, with_labels: bool = True) -> PreparedScene
     """Load a scene (npz [+ json]) and prepare it (see module docstring). Labels need the json."""
     npz, js = scene_paths(path)
     pts = load_scene_points(npz)
-    keep, local, height, origin = prepare_points(pts["xyz"], params)
+    keep, local, height, origin, gg = _prepare_points(pts["xyz"], params)
     classes = list(params["classes"])
     label = pts.get("label")
     label = np.full(len(local), -1, np.int64) if label is None else np.asarray(label, np.int64)[keep]
@@ -151,6 +176,7 @@ def prepare_scene(path, params: dict, with_labels: bool = True) -> PreparedScene
             cls = np.array([classes.index(o["cls"]) for o in objs], np.int64)
             obj_id = np.array([o["id"] for o in objs], np.int64)
         meta = {"n_objects": len(objs)}
+    meta["ground_grid"] = gg  # the ground estimate (local frame), used by domain_randomise
     sid = npz.stem
     return PreparedScene(sid, local, height, label, boxes, cls, obj_id, origin, int(len(pts["xyz"])), axis, meta)
 
@@ -286,6 +312,380 @@ def augment(xyz: np.ndarray, height: np.ndarray, label: np.ndarray, boxes: np.nd
         height *= f
         boxes[:, :6] *= f
     return xyz, height, boxes.astype(np.float32)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Domain randomisation (training only; the ranges and their reasoning are in config.py's docstring)
+# ---------------------------------------------------------------------------------------------------
+
+#: One random stream per effect (children of one draw per scene): changing one effect's range leaves
+#: the realisation of every other effect unchanged.
+DR_STREAMS = ("burial", "outliers", "leak", "density", "dropout", "sample", "zfield", "lines", "noise",
+              "roughness")
+#: Half the swath angle (deg; a 130 deg swath): the smile is flat beyond the swath edge.
+DR_HALF_SWATH_DEG = 65.0
+#: Number and wavelength range (m) of the waves of the smooth sampling-density field.
+DR_DENSITY_WAVES = 3
+DR_DENSITY_WAVELENGTH_M = (8.0, 40.0)
+#: Largest aspect ratio (semi-major / semi-minor axis) of a dropout ellipse.
+DR_BLOB_ASPECT = 3.0
+#: Generated points (spikes, leaked seabed) stay out of the gt box footprints grown by this (m, per side).
+DR_BOX_MARGIN_M = 0.2
+#: An object rests on the seabed (and may be sunk) if its box bottom is at most this above the ground (m).
+DR_REST_TOL_M = 0.3
+
+
+@dataclass
+class DomainRandomised:
+    """One randomised, sampled training scene (local frame).
+
+    xyz (n_points, 3) float32, height (n_points,) float32, label (n_points,) int64 (object id or -1),
+    boxes (K, 7) float32, axis (K, 3) float32 (the scene's boxes/axes moved with their points),
+    source (n_points,) int64: index of the scene point each point came from, -1 for a leaked seabed
+    point, -2 for a spike; draws: the per-scene values drawn (for tests and diagnostics).
+    """
+
+    xyz: np.ndarray
+    height: np.ndarray
+    label: np.ndarray
+    boxes: np.ndarray
+    axis: np.ndarray
+    source: np.ndarray
+    draws: dict
+
+
+def _draw(rng: np.random.Generator, rng_range) -> float:
+    """One value U(low, high) (one draw, also for low == high)."""
+    return float(rng.uniform(float(rng_range[0]), float(rng_range[1])))
+
+
+def _draw_int(rng: np.random.Generator, rng_range) -> int:
+    """One integer uniform in [low, high] (both included)."""
+    return int(rng.integers(int(rng_range[0]), int(rng_range[1]) + 1))
+
+
+def _ground_model(scene: PreparedScene, cell_m: float):
+    """The ground estimate of a scene in the local frame: (ground z at xy (n, 2) -> (n,), footprint low
+    (2,), footprint high (2,), grid corner (2,), grid shape (nx, ny)). From the scene's ground grid
+    (:func:`prepare_scene` stores it) or, without one, a plane through the ground z (= z - height) of
+    the kept points on a grid of ``cell_m`` cells over their footprint."""
+    gg = scene.meta.get("ground_grid") if scene.meta else None
+    if gg is not None:
+        lo, grid, cell = np.asarray(gg["lo"], np.float64), np.asarray(gg["z"], np.float64), float(gg["cell_m"])
+        hi = np.asarray(gg.get("hi", lo + np.array(grid.shape) * cell), np.float64)
+        return (lambda q: ground_at(lo, grid, cell, q)), lo, hi, lo, grid.shape
+    xy = scene.xyz[:, :2].astype(np.float64)
+    gz = scene.xyz[:, 2].astype(np.float64) - scene.height.astype(np.float64)
+    coef = np.linalg.lstsq(np.c_[np.ones(len(xy)), xy], gz, rcond=None)[0]
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    shape = tuple(int(v) for v in np.floor((hi - lo) / cell_m).astype(np.int64) + 1)
+    return (lambda q: coef[0] + np.asarray(q, np.float64) @ coef[1:]), lo, hi, lo, shape
+
+
+def _in_box_footprints(xy: np.ndarray, boxes: np.ndarray, margin_m: float) -> np.ndarray:
+    """(n,) bool: xy (n, 2) inside the footprint of any box (K, 7) grown by ``margin_m`` per side."""
+    inside = np.zeros(len(xy), bool)
+    if len(xy) == 0:
+        return inside
+    for b in boxes:
+        hl, hw = 0.5 * b[3] + margin_m, 0.5 * b[4] + margin_m
+        r = math.hypot(hl, hw)
+        near = np.flatnonzero((np.abs(xy[:, 0] - b[0]) <= r) & (np.abs(xy[:, 1] - b[1]) <= r))
+        if len(near) == 0:
+            continue
+        d = xy[near] - b[:2]
+        c, s = math.cos(b[6]), math.sin(b[6])
+        inside[near[(np.abs(c * d[:, 0] + s * d[:, 1]) <= hl) & (np.abs(-s * d[:, 0] + c * d[:, 1]) <= hw)]] = True
+    return inside
+
+
+def _object_index(label: np.ndarray, obj_id: np.ndarray) -> np.ndarray:
+    """(n,) index into obj_id of each point's label, -1 for background and unboxed objects."""
+    out = np.full(len(label), -1, np.int64)
+    if len(obj_id) == 0:
+        return out
+    order = np.argsort(obj_id, kind="stable")
+    sid = obj_id[order]
+    pos = np.clip(np.searchsorted(sid, label), 0, len(sid) - 1)
+    hit = (sid[pos] == label) & (label >= 0)
+    out[hit] = order[pos[hit]]
+    return out
+
+
+def weighted_sample(weight: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` indices drawn without replacement with probability proportional to ``weight`` (n_w,) >= 0
+    (Efraimidis-Spirakis keys u^(1/w)), in random order. With fewer than ``n`` positive weights every
+    such point is used once and the rest drawn with replacement; with none, the weights are taken as 1."""
+    pos = np.flatnonzero(weight > 0)
+    if len(pos) == 0:
+        pos = np.arange(len(weight))
+        w = np.ones(len(weight))
+    else:
+        w = weight[pos].astype(np.float64)
+    if len(pos) == 0:
+        raise ValueError("no points to sample from")
+    u = 1.0 - rng.random(len(pos))  # (0, 1]
+    if len(pos) >= n:
+        key = np.log(u) / w
+        sel = pos[np.argpartition(key, len(pos) - n)[len(pos) - n:]]
+    else:
+        sel = np.concatenate([pos, rng.choice(pos, n - len(pos), replace=True, p=w / w.sum())])
+    return rng.permutation(sel).astype(np.int64)
+
+
+def dr_z_field(xy: np.ndarray, draws: dict) -> np.ndarray:
+    """The smooth vertical distortion (m, (n,)) at xy (n, 2) (local frame) of a scene's draws: planar
+    tilt + smile across the virtual track + residual heave along it."""
+    p = np.asarray(xy, np.float64) - draws["centre"]
+    az, tr = draws["tilt_azimuth_rad"], draws["track_rad"]
+    tilt = math.tan(draws["tilt_rad"]) * (p[:, 0] * math.cos(az) + p[:, 1] * math.sin(az))
+    along = p[:, 0] * math.cos(tr) + p[:, 1] * math.sin(tr)
+    across = -p[:, 0] * math.sin(tr) + p[:, 1] * math.cos(tr) - draws["track_offset_m"]
+    D = draws["smile_depth_m"]
+    u = np.clip(across, -D * math.tan(math.radians(DR_HALF_SWATH_DEG)), D * math.tan(math.radians(DR_HALF_SWATH_DEG)))
+    smile = draws["smile_k"] * D * (np.sqrt(1.0 + (u / D) ** 2) - 1.0)
+    heave = draws["heave_m"] * np.sin(2 * math.pi * along / draws["heave_wavelength_m"] + draws["heave_phase_rad"])
+    return tilt + smile + heave
+
+
+def _density_wave(xy: np.ndarray, draws: dict) -> np.ndarray:
+    """Sum of the density field's cosine waves at xy (n, 2) (local frame)."""
+    px, py = xy[:, 0] - draws["centre"][0], xy[:, 1] - draws["centre"][1]
+    wave = np.zeros(len(xy))
+    for a, lam, ph in zip(draws["density_azimuth_rad"], draws["density_wavelength_m"], draws["density_phase_rad"]):
+        wave += np.cos((2 * math.pi / lam) * (px * math.cos(a) + py * math.sin(a)) + ph)
+    return wave
+
+
+def dr_density_weight(xy: np.ndarray, draws: dict) -> np.ndarray:
+    """Relative sampling density (n,) at xy (n, 2) of a scene's draws (before the dropout blobs): the
+    waves rescaled to [-1, 1] over the scene's point pool, weight = contrast^(wave / 2), so that the
+    largest / smallest weight of the pool is the drawn contrast."""
+    lo, hi = draws["density_wave_range"]
+    wave = _density_wave(np.asarray(xy, np.float64), draws)
+    wave = (2.0 * wave - (lo + hi)) / (hi - lo) if hi > lo else np.zeros(len(wave))
+    return np.exp((0.5 * math.log(draws["density_contrast"])) * wave)
+
+
+def _line_coordinate(xy: np.ndarray, draws: dict) -> np.ndarray:
+    """Across-track coordinate (m) of the virtual survey lines (strip k holds k*S <= v < (k+1)*S)."""
+    p = np.asarray(xy, np.float64) - draws["centre"]
+    tr = draws["track_rad"]
+    return -p[:, 0] * math.sin(tr) + p[:, 1] * math.cos(tr) + draws["line_shift_m"]
+
+
+def domain_randomise(scene: PreparedScene, params: dict, rng: np.random.Generator) -> DomainRandomised:
+    """Randomised sensor effects on one prepared (ground-filtered) scene, then the ``n_points`` sample.
+
+    The effects, in order (ranges: the ``dr_*`` parameters; reasoning: config.py's docstring):
+
+    1. burial: objects resting on the seabed sink by U(``dr_burial_m``) with ``dr_burial_prob`` (an
+       object stacked on a sunk one goes down with it); points now below the ground-filter height
+       vanish; boxes and axes move down;
+    2. spikes: ~``dr_outlier_frac`` x kept points at uniform positions of the footprint, at a height
+       U(``dr_outlier_height_m``) above the ground estimate, label -1;
+    3. seabed leaks: U{``dr_leak_patches``} random cells of the ground grid are lowered by
+       U(``dr_leak_depth_m``) (a deep flier sets the cell minimum); the bilinear ground estimate dips
+       as the cell's hat (half-width ``ground_cell_m``), the height of every point there rises, and
+       seabed points (at the seabed density the filter removed, true height U(0, ground_height_m / 2))
+       whose height now exceeds ``ground_height_m`` are added, label -1;
+    4. sampling weights: a smooth density field with max/min ratio U(``dr_density_contrast``) times 0
+       inside U{``dr_dropout_blobs``} ellipses centred on random points; the ``n_points`` are drawn
+       with these weights without replacement (:func:`weighted_sample`);
+    5. z field (:func:`dr_z_field`): tilt, smile and heave on z only (the ground estimate follows a
+       smooth field); the boxes move with the field at their centre;
+    6. line offsets: strips of width U(``dr_line_spacing_m``) along the virtual track, each shifted by
+       N(0, sigma^2), sigma ~ U(``dr_line_offset_m``); in the overlap band a point takes either line;
+       z += offset, height += offset - the lower of the two lines there; boxes take their strip's;
+    7. range noise: z and height += N(0, sigma^2), sigma ~ U(``dr_range_noise_m``);
+    8. roughness: object points (label >= 0) move by N(0, sigma^2) per axis, sigma ~ U(``dr_roughness_m``).
+
+    Generated points never fall inside a gt box footprint grown by ``DR_BOX_MARGIN_M``. All random
+    numbers come from ``rng`` (one draw per scene, then one child stream per effect).
+    """
+    n_points = int(params["n_points"])
+    base = int(rng.integers(0, 2**63 - 1))
+    g = {name: np.random.default_rng([base, i]) for i, name in enumerate(DR_STREAMS)}
+    thr = float(params["ground_height_m"])
+    use_filter = bool(params["ground_filter"])
+    cell = float(params["ground_cell_m"])
+    ground, lo, hi, grid_lo, grid_shape = _ground_model(scene, cell)
+    centre = 0.5 * (lo + hi)
+    xyz = scene.xyz.astype(np.float64)
+    h = scene.height.astype(np.float64)
+    label = scene.label.astype(np.int64)
+    boxes = scene.boxes.astype(np.float64)
+    axis = (boxes[:, :3].copy() if scene.axis is None else np.asarray(scene.axis, np.float64).copy())
+    K = len(boxes)
+    draws: dict = {"centre": centre}
+
+    # 1. burial
+    r = g["burial"]
+    u, depth = r.random(K), r.uniform(float(params["dr_burial_m"][0]), float(params["dr_burial_m"][1]), K)
+    sink = np.zeros(K)
+    if K:
+        bottom = boxes[:, 2] - 0.5 * boxes[:, 5]
+        resting = bottom - ground(boxes[:, :2]) <= DR_REST_TOL_M
+        sink = np.where((u < float(params["dr_burial_prob"])) & resting, depth, 0.0)
+        # an element stacked on a sunk one (footprints overlapping, bottom higher) goes down with it
+        reach = 0.5 * np.maximum(boxes[:, 3], boxes[:, 4])
+        on_top = ((np.hypot(*(boxes[:, None, :2] - boxes[None, :, :2]).transpose(2, 0, 1)) < reach[:, None] + reach)
+                  & (bottom[:, None] > bottom[None, :] + DR_REST_TOL_M) & ~resting[:, None])
+        sink = np.maximum(sink, np.max(np.where(on_top, sink[None, :], 0.0), axis=1))
+    keep = np.ones(len(xyz), bool)
+    if np.any(sink > 0):
+        oi = _object_index(label, scene.obj_id)
+        dz = np.where(oi >= 0, sink[np.maximum(oi, 0)], 0.0)
+        xyz[:, 2] -= dz
+        h -= dz
+        keep = ~((dz > 0) & ((h <= thr) if use_filter else (h < 0.0)))
+        if not keep.any():  # a scene made of one sunk object: keep its points rather than none
+            keep[:] = True
+        boxes[:, 2] -= sink
+        axis[:, 2] -= sink
+    draws["burial_m"] = sink
+    src = np.flatnonzero(keep)
+    xyz, h, label = xyz[keep], h[keep], label[keep]
+
+    # 2. spikes
+    r = g["outliers"]
+    frac = _draw(r, params["dr_outlier_frac"])
+    n_out = int(r.binomial(len(scene.xyz), frac))
+    q = r.uniform(lo, hi, (n_out, 2))
+    hq = r.uniform(float(params["dr_outlier_height_m"][0]), float(params["dr_outlier_height_m"][1]), n_out)
+    ok = ~_in_box_footprints(q, boxes, DR_BOX_MARGIN_M)
+    q, hq = q[ok], hq[ok]
+    out_xyz = np.c_[q, ground(q) + hq] if len(q) else np.zeros((0, 3))
+    draws.update(outlier_frac=frac, n_outliers=len(q))
+
+    # 3. seabed leaks: a deep flier lowers its cell's minimum by d; the bilinear ground estimate dips
+    #    as that cell's hat (half-width one cell), so heights there rise and seabed points get through
+    r = g["leak"]
+    n_patch = _draw_int(r, params["dr_leak_patches"])
+    cells = np.c_[r.integers(0, grid_shape[0], n_patch), r.integers(0, grid_shape[1], n_patch)]
+    dips = r.uniform(float(params["dr_leak_depth_m"][0]), float(params["dr_leak_depth_m"][1]), n_patch)
+    centres = grid_lo + (cells + 0.5) * cell
+    n_removed = max(int(scene.n_raw) - len(scene.xyz), 0) if use_filter else 0
+    area = float(np.prod(np.maximum(hi - lo, 1e-6)))
+    rho = n_removed / area  # seabed soundings per m^2 that the ground filter removed
+    leak_xy, leak_h0, leak_h = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    out_h = hq
+    if n_patch:
+        dgrid = np.zeros(grid_shape)
+        np.maximum.at(dgrid, (cells[:, 0], cells[:, 1]), dips)  # the deepest flier sets a cell's minimum
+
+        def dip(xy):
+            return ground_at(grid_lo, dgrid, cell, xy)
+
+        counts = r.poisson(rho * (2 * cell) ** 2, n_patch)
+        owner = np.repeat(np.arange(n_patch), counts)
+        leak_xy = centres[owner] + r.uniform(-cell, cell, (len(owner), 2))
+        leak_h0 = r.uniform(0.0, 0.5 * thr, len(owner))
+        lx, ly = leak_xy[:, 0], leak_xy[:, 1]
+        ok = (lx >= lo[0]) & (lx <= hi[0]) & (ly >= lo[1]) & (ly <= hi[1])
+        for i in range(n_patch - 1):  # a spot covered by an earlier patch already has its seabed points
+            ok &= (owner <= i) | (np.abs(lx - centres[i, 0]) >= cell) | (np.abs(ly - centres[i, 1]) >= cell)
+        leak_xy, leak_h0 = leak_xy[ok], leak_h0[ok]
+        leak_h = leak_h0 + dip(leak_xy)
+        ok = leak_h > thr
+        leak_xy, leak_h0, leak_h = leak_xy[ok], leak_h0[ok], leak_h[ok]
+        ok = ~_in_box_footprints(leak_xy, boxes, DR_BOX_MARGIN_M)
+        leak_xy, leak_h0, leak_h = leak_xy[ok], leak_h0[ok], leak_h[ok]
+        h = h + dip(xyz[:, :2])
+        out_h = hq + dip(q)
+    leak_xyz = np.c_[leak_xy, ground(leak_xy) + leak_h0] if len(leak_xy) else np.zeros((0, 3))
+    draws.update(leak_centres=centres, leak_depths_m=dips, n_leak=len(leak_xy))
+
+    # the pool: kept scene points + spikes + leaked seabed
+    xyz = np.concatenate([xyz, out_xyz, leak_xyz])
+    h = np.concatenate([h, out_h, leak_h])
+    label = np.concatenate([label, np.full(len(out_xyz) + len(leak_xyz), -1, np.int64)])
+    src = np.concatenate([src, np.full(len(out_xyz), -2), np.full(len(leak_xyz), -1)]).astype(np.int64)
+
+    # 4. sampling weights: smooth density field, dropout blobs
+    r = g["density"]
+    draws.update(density_contrast=_draw(r, params["dr_density_contrast"]),
+                 density_azimuth_rad=r.uniform(0.0, 2 * math.pi, DR_DENSITY_WAVES),
+                 density_wavelength_m=r.uniform(*DR_DENSITY_WAVELENGTH_M, DR_DENSITY_WAVES),
+                 density_phase_rad=r.uniform(0.0, 2 * math.pi, DR_DENSITY_WAVES))
+    wave = _density_wave(xyz[:, :2], draws)
+    draws["density_wave_range"] = (float(wave.min()), float(wave.max())) if len(wave) else (0.0, 0.0)
+    weight = dr_density_weight(xyz[:, :2], draws)
+    r = g["dropout"]
+    n_blob = _draw_int(r, params["dr_dropout_blobs"])
+    bc = xyz[r.integers(0, len(xyz), n_blob), :2]
+    ba = r.uniform(float(params["dr_dropout_radius_m"][0]), float(params["dr_dropout_radius_m"][1]), n_blob)
+    bb = ba / r.uniform(1.0, DR_BLOB_ASPECT, n_blob)
+    bt = r.uniform(0.0, math.pi, n_blob)
+    for j in range(n_blob):
+        near = np.flatnonzero((np.abs(xyz[:, 0] - bc[j, 0]) <= ba[j]) & (np.abs(xyz[:, 1] - bc[j, 1]) <= ba[j]))
+        d = xyz[near, :2] - bc[j]
+        a = (math.cos(bt[j]) * d[:, 0] + math.sin(bt[j]) * d[:, 1]) / max(ba[j], 1e-9)
+        b = (-math.sin(bt[j]) * d[:, 0] + math.cos(bt[j]) * d[:, 1]) / max(bb[j], 1e-9)
+        weight[near[a * a + b * b <= 1.0]] = 0.0
+    draws["blobs"] = np.c_[bc, ba, bb, bt] if n_blob else np.zeros((0, 5))
+
+    # sample
+    idx = weighted_sample(weight, n_points, g["sample"])
+    xyz, h, label, src = xyz[idx], h[idx], label[idx], src[idx]
+
+    # 5. smooth z field: tilt + smile + heave (z only; the ground estimate follows it)
+    r = g["zfield"]
+    half = 0.5 * float(np.max(hi - lo))
+    draws.update(
+        tilt_rad=math.radians(_draw(r, params["dr_tilt_deg"])), tilt_azimuth_rad=float(r.uniform(0, 2 * math.pi)),
+        smile_k=_draw(r, params["dr_smile_coeff"]), smile_depth_m=float(params["dr_smile_depth_m"]),
+        track_rad=float(r.uniform(0, math.pi)), track_offset_m=float(r.uniform(-half, half)),
+        heave_m=_draw(r, params["dr_heave_m"]), heave_wavelength_m=_draw(r, params["dr_heave_wavelength_m"]),
+        heave_phase_rad=float(r.uniform(0, 2 * math.pi)))
+    xyz[:, 2] += dr_z_field(xyz[:, :2], draws)
+    if K:
+        fz = dr_z_field(boxes[:, :2], draws)
+        boxes[:, 2] += fz
+        axis[:, 2] += fz
+
+    # 6. vertical offsets of virtual survey lines (strips along the track)
+    r = g["lines"]
+    sigma = _draw(r, params["dr_line_offset_m"])
+    S = _draw(r, params["dr_line_spacing_m"])
+    draws.update(line_sigma_m=sigma, line_spacing_m=S, line_shift_m=float(r.uniform(0.0, S)))
+    band = 0.5 * float(params["dr_line_overlap"]) * S
+    v = _line_coordinate(xyz[:, :2], draws)
+    vb = _line_coordinate(boxes[:, :2], draws) if K else np.zeros(0)
+    line = np.floor((v + r.uniform(-band, band, len(v))) / S).astype(np.int64)
+    low_line = np.floor((v - band) / S).astype(np.int64)
+    high_line = np.floor((v + band) / S).astype(np.int64)
+    box_line = np.floor(vb / S).astype(np.int64)
+    i0 = int(min(low_line.min(), box_line.min(initial=low_line.min())))
+    i1 = int(max(high_line.max(), box_line.max(initial=high_line.max())))
+    offs = sigma * r.standard_normal(i1 - i0 + 1)
+    dz = offs[line - i0]
+    xyz[:, 2] += dz
+    h += dz - np.minimum(offs[low_line - i0], offs[high_line - i0])
+    if K:
+        boxes[:, 2] += offs[box_line - i0]
+        axis[:, 2] += offs[box_line - i0]
+    draws.update(line_first=i0, line_offsets_m=offs)
+
+    # 7. range noise (z and height)
+    r = g["noise"]
+    sigma = _draw(r, params["dr_range_noise_m"])
+    n = sigma * r.standard_normal(len(xyz))
+    xyz[:, 2] += n
+    h += n
+    draws["noise_sigma_m"] = sigma
+
+    # 8. object roughness
+    r = g["roughness"]
+    sigma = _draw(r, params["dr_roughness_m"])
+    d = sigma * r.standard_normal((len(xyz), 3))
+    obj = label >= 0
+    xyz[obj] += d[obj]
+    h[obj] += d[obj, 2]
+    draws["roughness_sigma_m"] = sigma
+
+    return DomainRandomised(xyz.astype(np.float32), h.astype(np.float32), label, boxes.astype(np.float32),
+                            axis.astype(np.float32), src, draws)
 
 
 def collate(items: list[tuple], device) -> dict:

@@ -11,7 +11,9 @@
 Determinism: the model is initialised from ``seed``; the order of the scenes in every epoch, the
 point samples and the augmentation of every step come from seeds derived from (``seed``, epoch,
 step), so a resumed run continues exactly as an uninterrupted one; inference samples points with a
-seed derived from (``seed``, scene id).
+seed derived from (``seed``, scene id). With ``dr_enabled`` the domain randomisation of every step
+(:func:`~.data.domain_randomise`, training only) draws from its own seed derived from (``seed``, "dr",
+epoch, step); with it off nothing of it runs and nothing is drawn for it.
 """
 
 from __future__ import annotations
@@ -41,7 +43,16 @@ from .config import (
     model_settings,
     resolve_params,
 )
-from .data import PreparedScene, augment, collate, prepare_points, prepare_scene, sample_points, wrap_yaw
+from .data import (
+    PreparedScene,
+    augment,
+    collate,
+    domain_randomise,
+    prepare_points,
+    prepare_scene,
+    sample_points,
+    wrap_yaw,
+)
 from .model import SASADetector
 
 log = logging.getLogger(__name__)
@@ -81,20 +92,31 @@ def _rng(seed: int, *keys) -> np.random.Generator:
     return np.random.default_rng(derive_seed(seed, "sasa", *keys))
 
 
-def _make_batch(scenes: list[PreparedScene], params: dict, rng: np.random.Generator, device, train_aug: bool):
+def _make_batch(scenes: list[PreparedScene], params: dict, rng: np.random.Generator, device, train_aug: bool,
+                dr_rng: np.random.Generator | None = None):
+    """Sample (and with ``train_aug`` augment) the scenes into a batch. With ``dr_rng`` (training with
+    ``dr_enabled``) each scene first goes through :func:`domain_randomise` (drawing from ``dr_rng``),
+    which also draws its point sample; without it the code path and the draws from ``rng`` are those of
+    training without domain randomisation."""
     items = []
     for s in scenes:
-        idx = sample_points(len(s.xyz), int(params["n_points"]), rng, s.scene_id)
-        xyz, h, lab = s.xyz[idx], s.height[idx], s.label[idx]
-        boxes = s.boxes
+        if dr_rng is None:
+            idx = sample_points(len(s.xyz), int(params["n_points"]), rng, s.scene_id)
+            xyz, h, lab = s.xyz[idx], s.height[idx], s.label[idx]
+            boxes, axis = s.boxes, s.axis
+        else:
+            d = domain_randomise(s, params, dr_rng)
+            xyz, h, lab, boxes, axis = d.xyz, d.height, d.label, d.boxes, d.axis
         if train_aug:
-            xyz, h, boxes = augment(xyz, h, lab, boxes, s.cls, s.obj_id, params, rng, s.axis)
+            xyz, h, boxes = augment(xyz, h, lab, boxes, s.cls, s.obj_id, params, rng, axis)
         items.append((xyz, h, boxes, s.cls))
     return collate(items, device)
 
 
 def _checkpoint_settings(params: dict, train_ids: list[str]) -> dict:
     s = model_settings(params)
+    if not params.get("dr_enabled"):  # off: the settings of a run without domain randomisation (old checkpoints resume)
+        s = {k: v for k, v in s.items() if not k.startswith("dr_")}
     s["train_scenes"] = list(train_ids)
     return s
 
@@ -341,7 +363,8 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
         for step in range(steps_per_epoch):
             sel = [scenes[i] for i in order[step * bs:(step + 1) * bs]]
             rng = _rng(seed, "step", epoch, step)
-            batch = _make_batch(sel, params, rng, device, train_aug=True)
+            dr_rng = _rng(seed, "dr", epoch, step) if params["dr_enabled"] else None
+            batch = _make_batch(sel, params, rng, device, train_aug=True, dr_rng=dr_rng)
             out = model(batch)
             loss, parts = model.loss(out, batch)
             if not torch.isfinite(loss):
