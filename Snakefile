@@ -16,6 +16,7 @@ include: "rules/sasa.smk"
 include: "rules/evaluate.smk"
 include: "rules/ablation.smk"
 include: "rules/noise.smk"
+include: "rules/survey.smk"
 include: "rules/report.smk"
 
 
@@ -23,3 +24,4 @@ rule all:
     default_target: True
     input:
         final_outputs(),
+        SURVEY_OUTPUTS,

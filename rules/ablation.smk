@@ -59,3 +59,41 @@ rule ablation_reference:
         classes=CLASSES,
     script:
         "../workflow_scripts/ablation_reference.py"
+
+
+# One-at-a-time realism ablation: the methods on the first test scenes with one realism effect on at a
+# time, against the same scenes without (synthetic) and with every effect (realism).
+rule realism_ablation:
+    input:
+        detections=expand(
+            "results/detections/{method}/{dataset}/{scene}.json",
+            method=config["realism_ablation"]["methods"],
+            dataset=["synthetic", "realism"] + list(REALISM_EFFECTS.values()),
+            scene=REALISM_ABLATION_SCENES,
+        ),
+        labels=[
+            dataset_scene_file(d, s, "json")
+            for d in ["synthetic", "realism"] + list(REALISM_EFFECTS.values())
+            for s in REALISM_ABLATION_SCENES
+        ],
+        meta=object_files("json"),
+    output:
+        "results/realism_ablation/summary.json",
+    log:
+        "results/logs/realism_ablation.log",
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        methods=config["realism_ablation"]["methods"],
+        effects=REALISM_EFFECTS,
+        effect_keys=REALISM_EFFECT_KEYS,
+        scenes=REALISM_ABLATION_SCENES,
+        dirs={
+            d: DATASET_DIRS[d]
+            for d in ["synthetic", "realism"] + list(REALISM_EFFECTS.values())
+        },
+        evaluation=config["evaluation"],
+        classes=CLASSES,
+    script:
+        "../workflow_scripts/realism_ablation.py"

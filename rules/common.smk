@@ -8,7 +8,13 @@ from snakemake.exceptions import WorkflowError
 # script inserts the same path itself (e.g. in a rule's conda env).
 sys.path.insert(0, os.path.join(workflow.basedir, "src"))
 
-from sonardet.config import ConfigError, realism_test_config, validate_config
+from sonardet.config import (
+    ConfigError,
+    realism_effect_config,
+    realism_effects,
+    realism_test_config,
+    validate_config,
+)
 from sonardet.sim.dataset import make_splits, scene_ids, split_names
 
 try:
@@ -36,11 +42,39 @@ DATASET_DIRS = {"synthetic": "results/scenes"}
 if config["realism_test"]["enabled"]:
     DATASETS["realism"] = SPLIT["test"]
     DATASET_DIRS["realism"] = "results/realism/scenes"
+HYBRID = config["hybrid_test"]["enabled"] and os.path.exists(
+    config["hybrid_test"]["soundings"]
+)
+if config["hybrid_test"]["enabled"] and not HYBRID:
+    print(
+        f"sonardet: hybrid_test.soundings {config['hybrid_test']['soundings']} not found: the "
+        "hybrid test set is left out of this run (set hybrid_test.soundings to a real soundings "
+        "table, or hybrid_test.enabled: false to silence this)",
+        file=sys.stderr,
+    )
+if HYBRID:
+    DATASETS["hybrid"] = scene_ids(config["hybrid_test"]["n_scenes"])
+    DATASET_DIRS["hybrid"] = "results/hybrid/scenes"
 FRACTIONS = [int(f) for f in config["split"]["fractions"]]
 #: Methods: model_based_{variant} and sasa_{fraction}.
 METHODS = [f"model_based_{v}" for v in config["model_based"]["variants"]] + (
     [f"sasa_{f}" for f in FRACTIONS] if config["sasa"]["enabled"] else []
 )
+#: SASA trained with domain randomisation: sasa_dr_{fraction} (compared with sasa_{fraction}).
+DR_METHODS = (
+    [f"sasa_dr_{f}" for f in config["domain_randomisation"]["fractions"]]
+    if config["sasa"]["enabled"] and config["domain_randomisation"]["enabled"]
+    else []
+)
+#: One-at-a-time realism ablation: effect -> dataset name; its scenes are the first test scenes.
+REALISM_EFFECT_KEYS = realism_effects(config)
+REALISM_EFFECTS = {e: f"realism_{e}" for e in REALISM_EFFECT_KEYS}
+REALISM_ABLATION_SCENES = SPLIT["test"][: config["realism_ablation"]["n_scenes"]]
+for _effect, _dataset in REALISM_EFFECTS.items():
+    DATASETS[_dataset] = REALISM_ABLATION_SCENES
+    DATASET_DIRS[_dataset] = f"results/realism_ablation/{_effect}/scenes"
+#: Datasets evaluated on their own (the ablation datasets are evaluated together, in one job).
+EVAL_DATASETS = [d for d in DATASETS if d not in REALISM_EFFECTS.values()]
 #: Ablation grid points by name, and the test scenes they run on.
 ABLATION = (
     {p["name"]: p for p in config["ablation"]["points"]}
@@ -56,7 +90,9 @@ wildcard_constraints:
     dataset="|".join(DATASETS),
     variant="paper|ours",
     fraction=r"\d+",
-    method=r"model_based_(paper|ours)|sasa_\d+",
+    method=r"model_based_(paper|ours)|sasa_\d+|sasa_dr_\d+",
+    model=r"sasa_\d+|sasa_dr_\d+",
+    effect="|".join(REALISM_EFFECTS) or "none",
     point=r"[A-Za-z0-9_-]+",
 
 
@@ -95,10 +131,12 @@ def split_scene_files(name, ext):
     return expand("results/scenes/{scene}.{ext}", scene=SPLIT[name], ext=ext)
 
 
-def eval_files():
-    """metrics.json of every method on every evaluation dataset."""
+def eval_files(methods=None):
+    """metrics.json of every method (default: METHODS and DR_METHODS) on every evaluation dataset."""
     return expand(
-        "results/eval/{method}/{dataset}/metrics.json", method=METHODS, dataset=DATASETS
+        "results/eval/{method}/{dataset}/metrics.json",
+        method=METHODS + DR_METHODS if methods is None else methods,
+        dataset=EVAL_DATASETS,
     )
 
 
@@ -161,11 +199,15 @@ REPORT_TABLES = (
     + (["comparison_realism"] if "realism" in DATASETS else [])
     + (["ablation"] if ABLATION else [])
     + (["noise"] if NOISE else [])
+    + (["comparison_hybrid"] if "hybrid" in DATASETS else [])
+    + (["realism_ablation"] if REALISM_EFFECTS else [])
+    + (["domain_randomisation"] if DR_METHODS else [])
 )
 REPORT_FIGURES = (
     ["topview", "poses3d", "pr_curves", "dataset_example"]
     + (["loss_curves"] if config["sasa"]["enabled"] else [])
     + (["pareto"] if ABLATION else [])
+    + (["hybrid_example"] if "hybrid" in DATASETS else [])
 )
 
 
@@ -193,5 +235,6 @@ def final_outputs():
         + eval_files()
         + ablation_files()
         + (["results/noise/noise.json"] if NOISE else [])
+        + (["results/realism_ablation/summary.json"] if REALISM_EFFECTS else [])
         + report_files()
     )

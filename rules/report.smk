@@ -34,6 +34,20 @@ rule report:
         ],
         ablation=ablation_files(),
         noise=["results/noise/noise.json"] if NOISE else [],
+        realism_ablation=(
+            ["results/realism_ablation/summary.json"] if REALISM_EFFECTS else []
+        ),
+        hybrid_scenes=(
+            dataset_scene_files("hybrid", "json")
+            + dataset_scene_files("hybrid", "npz")
+            if "hybrid" in DATASETS
+            else []
+        ),
+        hybrid_detections=(
+            [detection_files(m, "hybrid") for m in METHODS]
+            if "hybrid" in DATASETS
+            else []
+        ),
         meta=object_files("json"),
         meshes=object_files("ply"),
     output:
@@ -63,6 +77,8 @@ rule report:
     threads: 1
     params:
         methods=METHODS,
+        dr_pairs={m: m.replace("sasa_dr_", "sasa_") for m in DR_METHODS},
+        datasets=EVAL_DATASETS,
         classes=CLASSES,
         test_scenes=DATASETS["synthetic"],
         train_scenes=SPLIT["train"],

@@ -1,4 +1,4 @@
-# SASA: one training job per training-data fraction, one inference job per fraction and dataset.
+# SASA: one training job per training-data fraction, one inference job per model and dataset.
 
 
 rule sasa_train:
@@ -30,6 +30,43 @@ rule sasa_train:
         "../workflow_scripts/sasa_train.py"
 
 
+# The same training with domain randomisation (config domain_randomisation): sasa_dr_{fraction}.
+rule sasa_train_dr:
+    input:
+        train=lambda w: split_scene_files(f"train_{w.fraction}", "npz"),
+        train_labels=lambda w: split_scene_files(f"train_{w.fraction}", "json"),
+        val=split_scene_files("val", "npz"),
+        val_labels=split_scene_files("val", "json"),
+    output:
+        model="results/models/sasa_dr_{fraction}/model.pt",
+        loss="results/models/sasa_dr_{fraction}/loss.csv",
+        summary="results/models/sasa_dr_{fraction}/train.json",
+    log:
+        "results/logs/sasa_train_dr/{fraction}.log",
+    benchmark:
+        "results/benchmarks/sasa_train_dr/{fraction}.tsv"
+    priority: 10
+    conda:
+        "../environment.yml"
+    threads: config["sasa"]["threads"]
+    resources:
+        mem_mb=6000,
+    params:
+        # The configured SASA settings with the dr_* keys on top (sonardet.detect.sasa.config).
+        sasa={
+            **config["sasa"],
+            "params": {
+                **config["sasa"]["params"],
+                **config["domain_randomisation"]["params"],
+                "dr_enabled": True,
+            },
+        },
+        seed=config["seed"],
+        classes=CLASSES,
+    script:
+        "../workflow_scripts/sasa_train.py"
+
+
 # One inference rule per evaluation dataset: a job loads the model once for all of the dataset's scenes.
 for _dataset in DATASETS:
 
@@ -37,19 +74,19 @@ for _dataset in DATASETS:
         name:
             f"sasa_infer_{_dataset}"
         input:
-            model="results/models/sasa_{fraction}/model.pt",
+            model="results/models/{model}/model.pt",
             scenes=dataset_scene_files(_dataset, "npz"),
         output:
             detections=expand(
-                "results/detections/sasa_{{fraction}}/{dataset}/{scene}.json",
+                "results/detections/{{model}}/{dataset}/{scene}.json",
                 dataset=_dataset,
                 scene=DATASETS[_dataset],
             ),
-            timing=f"results/stats/sasa_{{fraction}}/{_dataset}/inference.json",
+            timing=f"results/stats/{{model}}/{_dataset}/inference.json",
         log:
-            f"results/logs/sasa_infer/{{fraction}}/{_dataset}.log",
+            f"results/logs/sasa_infer/{{model}}/{_dataset}.log",
         benchmark:
-            f"results/benchmarks/sasa_infer/{{fraction}}/{_dataset}.tsv"
+            f"results/benchmarks/sasa_infer/{{model}}/{_dataset}.tsv"
         conda:
             "../environment.yml"
         threads: config["sasa"]["threads"]

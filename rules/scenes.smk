@@ -47,6 +47,54 @@ rule simulate_scene_realism:
         "../workflow_scripts/simulate_scene.py"
 
 
+rule simulate_scene_realism_effect:
+    input:
+        meshes=object_files("ply"),
+        meta=object_files("json"),
+    output:
+        npz="results/realism_ablation/{effect}/scenes/{scene}.npz",
+        json="results/realism_ablation/{effect}/scenes/{scene}.json",
+    log:
+        "results/logs/simulate_scene_realism_effect/{effect}/{scene}.log",
+    benchmark:
+        "results/benchmarks/simulate_scene_realism_effect/{effect}/{scene}.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        config=lambda w: {
+            k: v
+            for k, v in realism_effect_config(config, w.effect).items()
+            if k in ("seed", "classes", "objects", "sensor", "scenes")
+        },
+    script:
+        "../workflow_scripts/simulate_scene.py"
+
+
+rule simulate_scene_hybrid:
+    input:
+        soundings=config["hybrid_test"]["soundings"],
+        meshes=object_files("ply"),
+        meta=object_files("json"),
+    output:
+        npz="results/hybrid/scenes/{scene}.npz",
+        json="results/hybrid/scenes/{scene}.json",
+    log:
+        "results/logs/simulate_scene_hybrid/{scene}.log",
+    benchmark:
+        "results/benchmarks/simulate_scene_hybrid/{scene}.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        config={
+            k: config[k]
+            for k in ("seed", "classes", "objects", "sensor", "scenes", "hybrid_test")
+        },
+    script:
+        "../workflow_scripts/simulate_hybrid_scene.py"
+
+
 rule split:
     output:
         expand("results/splits/{name}.txt", name=SPLITS),

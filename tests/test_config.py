@@ -86,3 +86,44 @@ def test_workflow_refuses_bad_config_before_any_job(tmp_path):
     )
     assert proc.returncode != 0
     assert "objects.reef_ring.height_m" in proc.stdout + proc.stderr
+
+
+_RT = {"enabled": True, "sensor": {"range_quantum_m": 0.003, "outlier_prob": 0.001}, "burial_m": [0.0, 0.1]}
+
+
+@pytest.mark.parametrize(
+    "section, key",
+    [
+        ({"realism_ablation": {"enabled": True}}, "realism_ablation.enabled: needs realism_test.enabled"),
+        ({"realism_test": _RT, "realism_ablation": {"enabled": True, "effects": {"roll": ["roll_bias_deg"]}}},
+         "realism_ablation.effects.roll: key 'roll_bias_deg' is not set in realism_test.sensor"),
+        ({"realism_test": {**_RT, "burial_m": [0.0, 0.0]},
+          "realism_ablation": {"enabled": True, "effects": {"b": ["burial_m"]}}},
+         "realism_ablation.effects.b: burial_m is [0, 0]"),
+        ({"realism_test": _RT, "realism_ablation": {"enabled": True, "methods": ["sasa_dr_100"]}},
+         "realism_ablation.methods: 'sasa_dr_100' is not a configured method"),
+        ({"domain_randomisation": {"enabled": True, "fractions": [30]}}, "domain_randomisation.fractions: [30]"),
+        ({"hybrid_test": {"cell_m": 0}}, "hybrid_test.cell_m"),
+    ],
+)
+def test_test_set_sections_name_the_key(section, key):
+    with pytest.raises(ConfigError) as exc:
+        validate_config(section)
+    assert key in str(exc.value)
+
+
+def test_realism_effects_default_to_the_groups_realism_test_sets():
+    from sonardet.config import REALISM_EFFECT_GROUPS, realism_effect_config, realism_effects
+
+    cfg = validate_config({"realism_test": _RT, "realism_ablation": {"enabled": True}})
+    assert realism_effects(cfg) == {"quantisation": ["range_quantum_m"], "outliers": ["outlier_prob"],
+                                    "burial": ["burial_m"]}
+    one = realism_effect_config(cfg, "outliers")
+    assert one["sensor"]["realism"] == {"outlier_prob": 0.001} and one["scenes"]["realism"]["burial_m"] == [0, 0]
+    burial = realism_effect_config(cfg, "burial")
+    assert "realism" not in burial["sensor"] and burial["scenes"]["realism"]["burial_m"] == [0.0, 0.1]
+    # Every key of the sensor's realism profile belongs to exactly one group.
+    schema = yaml.safe_load((REPO / "src/sonardet/data/schema.yaml").read_text())
+    keys = set(schema["properties"]["sensor"]["properties"]["realism"]["properties"])
+    grouped = [k for v in REALISM_EFFECT_GROUPS.values() for k in v if k != "burial_m"]
+    assert sorted(grouped) == sorted(keys)

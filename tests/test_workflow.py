@@ -30,12 +30,16 @@ def smoke_run(tmp_path_factory):
     if REAL_FILE is not None:
         with open(work / "config_smoke.yaml", "a") as fh:
             fh.write(f"noise: {{survey: {json.dumps(str(REAL_FILE))}}}\n")
+            fh.write(f"hybrid_test: {{n_scenes: 1, soundings: {json.dumps(str(REAL_SOUNDINGS))}}}\n")
     proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return work
 
 
 CLASSES = ["reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s"]
+REAL_SOUNDINGS = REAL_FILE.parent / "r2sonic_sfbay_soundings.csv.gz" if REAL_FILE is not None else None
+#: Test sets evaluated on their own (the hybrid one needs the real line).
+EVAL_SETS = ("synthetic", "realism") + (("hybrid",) if REAL_FILE is not None else ())
 
 
 def test_objects_well_formed(smoke_run):
@@ -74,9 +78,9 @@ def test_detections_of_every_method(smoke_run):
 
     test = _test_scenes(smoke_run)
     assert len(test) == 1
-    for method in METHODS:
+    for method in METHODS + ["sasa_dr_100"]:
         for sid in test:
-            for dataset in ("synthetic", "realism"):
+            for dataset in ("synthetic", "realism", "realism_quantisation", "realism_burial"):
                 doc = read_detections(smoke_run / f"results/detections/{method}/{dataset}/{sid}.json", CLASSES)
                 assert doc["method"] == method and doc["scene"] == sid
     for variant in ("paper", "ours"):
@@ -97,8 +101,8 @@ def test_sasa_training_outputs(smoke_run):
 
 
 def test_metrics_of_every_method(smoke_run):
-    for method in METHODS:
-        for dataset in ("synthetic", "realism"):
+    for method in METHODS + ["sasa_dr_100"]:
+        for dataset in EVAL_SETS:
             m = json.loads((smoke_run / f"results/eval/{method}/{dataset}/metrics.json").read_text())
             assert 0.0 <= m["mAP_headline"] <= 1.0 + 1e-9  # the devkit's normalisation rounds, as ours
             assert sum(m["per_class"][c]["n_gt"] for c in CLASSES) >= 5
@@ -119,6 +123,49 @@ def test_realism_scenes_share_the_layout(smoke_run):
     pa = np.load(smoke_run / f"results/scenes/{sid}.npz")["xyz"]
     pb = np.load(smoke_run / f"results/realism/scenes/{sid}.npz")["xyz"]
     assert pa.shape != pb.shape or not np.array_equal(pa, pb)
+
+
+def test_domain_randomised_training(smoke_run):
+    plain = json.loads((smoke_run / "results/models/sasa_100/train.json").read_text())
+    dr = json.loads((smoke_run / "results/models/sasa_dr_100/train.json").read_text())
+    assert dr["n_train_scenes"] == plain["n_train_scenes"] and dr["steps"] == plain["steps"]
+    a = (smoke_run / "results/models/sasa_100/loss.csv").read_text().splitlines()[1]
+    b = (smoke_run / "results/models/sasa_dr_100/loss.csv").read_text().splitlines()[1]
+    assert a != b  # the randomised training saw other points
+    assert dr["params"]["dr_enabled"] is True and plain["params"]["dr_enabled"] is False
+
+
+def test_realism_ablation(smoke_run):
+    rows = json.loads((smoke_run / "results/realism_ablation/summary.json").read_text())
+    effects = {"none", "all", "quantisation", "burial"}
+    assert {(r["effect"], r["method"]) for r in rows} == {
+        (e, m) for e in effects for m in ("model_based_ours", "sasa_100", "sasa_dr_100")}
+    for r in rows:
+        assert r["n_scenes"] == 1 and 0.0 <= r["mAP"] <= 1.0 + 1e-9
+    none = {r["method"]: r for r in rows if r["effect"] == "none"}
+    # "none" is the plain synthetic scene: its mAP is the main evaluation's.
+    main = json.loads((smoke_run / "results/eval/model_based_ours/synthetic/metrics.json").read_text())
+    assert none["model_based_ours"]["mAP"] == pytest.approx(main["mAP_headline"], abs=1e-12)
+    # The burial effect sinks objects (only it), the quantisation effect moves soundings onto a 2.9 mm grid.
+    sid = _test_scenes(smoke_run)[0]
+    plain = json.loads((smoke_run / f"results/scenes/{sid}.json").read_text())
+    buried = json.loads((smoke_run / f"results/realism_ablation/burial/scenes/{sid}.json").read_text())
+    quant = json.loads((smoke_run / f"results/realism_ablation/quantisation/scenes/{sid}.json").read_text())
+    assert any(b["box"][2] < p["box"][2] - 1e-6 for p, b in zip(plain["objects"], buried["objects"]))
+    assert all(q["box"] == p["box"] for p, q in zip(plain["objects"], quant["objects"]))
+
+
+@pytest.mark.skipif(REAL_FILE is None, reason="real survey data not available")
+def test_hybrid_scene(smoke_run):
+    from sonardet.report import image_is_informative
+
+    meta = json.loads((smoke_run / "results/hybrid/scenes/s0000.json").read_text())
+    assert meta["hybrid"]["crs"] == "EPSG:32610" and meta["hybrid"]["n_replaced"] > 1000
+    assert len(meta["objects"]) >= 5 and all(o["visible"] for o in meta["objects"])
+    table = pd.read_csv(smoke_run / "results/report/tables/comparison_hybrid.csv")
+    assert table["method"].tolist()[: len(METHODS)] == METHODS
+    assert table["source"].tolist().count("source study") == 2
+    assert image_is_informative(smoke_run / "results/report/figures/hybrid_example.png")
 
 
 def test_ablation_points_and_reference(smoke_run):
@@ -143,8 +190,11 @@ def test_report_tables_and_figures(smoke_run):
     expected_rows = {"dataset": 3, "comparison": len(METHODS) + 2, "comparison_realism": len(METHODS) + 2,
                      "fractions": len(METHODS),
                      "ablation": 2 + len(METHODS)}
+    expected_rows["realism_ablation"] = 4  # none, quantisation, burial, all
+    expected_rows["domain_randomisation"] = len(EVAL_SETS)
     if REAL_FILE is not None:
         expected_rows["noise"] = 3  # two real patches and the simulator
+        expected_rows["comparison_hybrid"] = len(METHODS) + 2
     for name, n in expected_rows.items():
         df = pd.read_csv(tables / f"{name}.csv")
         assert len(df) == n, (name, len(df))
@@ -184,9 +234,11 @@ def test_threshold_change_reruns_only_its_jobs(smoke_run):
                           cwd=smoke_run, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     jobs = _job_counts(proc.stdout + proc.stderr)
-    # Only the changed variant's detections (synthetic and realism test sets), their evaluations and
-    # what reads them.
-    assert jobs == {"detect_model_based": 2, "evaluate": 2, "ablation_reference": 1, "report": 1, "all": 1}, jobs
+    # Only the changed variant's detections (synthetic, realism, the two realism-ablation sets and the
+    # hybrid set), their evaluations and what reads them.
+    n_sets = len(EVAL_SETS)
+    assert jobs == {"detect_model_based": n_sets + 2, "evaluate": n_sets, "ablation_reference": 1,
+                    "realism_ablation": 1, "report": 1, "all": 1}, jobs
 
 
 def _job_counts(text: str) -> dict:

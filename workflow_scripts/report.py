@@ -22,20 +22,29 @@ with rule_logging(snakemake, "report") as log:  # noqa: F821
         """The paths of `method` among results/{kind}/{method}/... files (method = parent `level` up)."""
         return [p for p in paths if Path(p).parents[level - 1].name == method]
 
-    def metrics_on(dataset):
-        """method -> results/eval/{method}/{dataset}/metrics.json"""
+    def metrics_on(dataset, which=None):
+        """method -> results/eval/{method}/{dataset}/metrics.json (default: the main methods)"""
         return {m: next(p for p in smk.input.metrics if Path(p).parent.name == dataset
-                        and Path(p).parents[1].name == m) for m in methods}
+                        and Path(p).parents[1].name == m) for m in (methods if which is None else which)}
+
+    # For reference only: the study measured these on real Baltic Sea sonar, not on our test sets.
+    study_real = pd.DataFrame([{"method": "model-based (study, real sonar)", "source": "source study"},
+                               {"method": "SASA (study, real sonar)", "source": "source study"}])
 
     metrics = metrics_on("synthetic")
     tables = {"dataset": rp.dataset_table(smk.input.dataset), "comparison": rp.comparison_table(metrics, classes)}
-    if "comparison_realism" in smk.params.tables:
-        real = rp.comparison_table(metrics_on("realism"), classes, study=False)
-        # For reference only: the study measured these on real Baltic Sea sonar, not on our realism set.
-        study = pd.DataFrame([{"method": "model-based (study, real sonar)", "source": "source study"},
-                              {"method": "SASA (study, real sonar)", "source": "source study"}])
-        study[real.columns[2]] = [0.83, 0.40]
-        tables["comparison_realism"] = pd.concat([real, study], ignore_index=True)
+    for dataset in ("realism", "hybrid"):
+        if f"comparison_{dataset}" in smk.params.tables:
+            real = rp.comparison_table(metrics_on(dataset), classes, study=False)
+            study = study_real.copy()
+            study[real.columns[2]] = [0.83, 0.40]
+            tables[f"comparison_{dataset}"] = pd.concat([real, study], ignore_index=True)
+    if "realism_ablation" in smk.params.tables:
+        tables["realism_ablation"] = rp.realism_ablation_table(smk.input.realism_ablation[0])
+    if "domain_randomisation" in smk.params.tables:
+        pairs = dict(smk.params.dr_pairs)
+        tables["domain_randomisation"] = rp.domain_randomisation_table(
+            {d: metrics_on(d, list(pairs) + list(pairs.values())) for d in smk.params.datasets}, pairs)
     sasa = [m for m in methods if m.startswith("sasa_")]
     train = {m: of(m, smk.input.training, 1)[0] for m in sasa}
     tables["fractions"] = rp.fraction_table(train, metrics, scenes_dir=Path(smk.input.scenes[0]).parent)
@@ -97,6 +106,15 @@ with rule_logging(snakemake, "report") as log:  # noqa: F821
                                                      fdir / "loss_curves.png")
     if "pareto" in want:
         figures["pareto"] = rp.plot_pareto(tables["ablation"], fdir / "pareto.png", default_mask="default")
+    if "hybrid_example" in want:
+        # The hybrid scene with the most objects, with the same methods as the synthetic top view.
+        hjs = [Path(p) for p in smk.input.hybrid_scenes if p.endswith(".json")]
+        hsid = max(hjs, key=lambda p: (len(json.loads(p.read_text())["objects"]), p.stem)).stem
+        hdets = {m: next(p for p in smk.input.hybrid_detections if Path(p).parent.parent.name == m
+                         and Path(p).stem == hsid) for m in shown}
+        hdir = hjs[0].parent
+        figures["hybrid_example"] = rp.plot_topview(hdir / f"{hsid}.npz", hdir / f"{hsid}.json", hdets,
+                                                    fdir / "hybrid_example.png")
     if smk.input.noise:
         figures["noise"] = Path(smk.input.noise[0]).with_suffix(".png")
     for name, path in figures.items():

@@ -16,7 +16,7 @@ from sonardet.workflow import rule_logging
 with rule_logging(snakemake, "sasa_infer") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     cfg = smk.params.sasa
-    method = f"sasa_{smk.wildcards.fraction}"
+    method = smk.wildcards.model
     device = None if cfg["device"] == "auto" else cfg["device"]
     params = {"num_threads": int(smk.threads), "progress": False}
     for k in ("score_thresh", "nms_mode", "nms_iou", "nms_pre_max", "nms_post_max"):

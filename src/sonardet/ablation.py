@@ -146,3 +146,33 @@ def reference_point(name: str, method: str, detection_jsons: list[str], scene_js
     out["seconds_per_scene"] = float(np.mean(seconds_per_scene))
     out["seconds_per_scene_max"] = float(np.max(seconds_per_scene))
     return out
+
+
+def realism_effect_rows(methods: list[str], datasets: dict[str, tuple[str, list[str]]], scenes: list[str],
+                        classes: list[str], evaluation: dict, objects_dir: str | Path,
+                        detections_root: str | Path = "results/detections") -> list[dict]:
+    """mAP of every method on every dataset of the one-at-a-time realism ablation, and its change
+    against the plain scenes.
+
+    datasets: effect name -> (dataset name, scene folder); must hold "none" (the plain synthetic
+    scenes) and may hold "all" (every effect on). Detections are read from
+    ``{detections_root}/{method}/{dataset}/{scene}.json``; ground truth from each dataset's own scene
+    files (burial and visibility change with the effect). Returns one row per (effect, method) with
+    mAP, AP per class, n_gt and delta_mAP = mAP - mAP on "none".
+    """
+    objects_dir = Path(objects_dir)
+    metas = [json.loads((objects_dir / f"{c}.json").read_text()) for c in classes]
+    rows = []
+    for effect, (dataset, folder) in datasets.items():
+        gt = _ground_truth([Path(folder) / f"{s}.json" for s in scenes])
+        for m in methods:
+            dets = {}
+            for s in scenes:
+                doc = read_detections(Path(detections_root) / m / dataset / f"{s}.json", classes)
+                dets[doc["scene"]] = doc["detections"]
+            r = _evaluate(gt, dets, classes, evaluation, metas)
+            rows.append({"effect": effect, "dataset": dataset, "method": m, "n_scenes": len(scenes), **r})
+    base = {r["method"]: r["mAP"] for r in rows if r["effect"] == "none"}
+    for r in rows:
+        r["delta_mAP"] = r["mAP"] - base[r["method"]]
+    return rows

@@ -134,6 +134,7 @@ def _cross_checks(cfg: dict) -> list[str]:
     if rt["enabled"]:
         derived = realism_test_config(cfg)
         derived["realism_test"] = {"enabled": False}
+        derived["realism_ablation"] = {"enabled": False}
         try:
             validate_config(derived, source="realism_test")
         except ConfigError as exc:
@@ -141,9 +142,50 @@ def _cross_checks(cfg: dict) -> list[str]:
                 if line.startswith("  - "):
                     out.append(line[4:].replace("sensor.realism", "realism_test.sensor")
                                .replace("scenes.realism.burial_m", "realism_test.burial_m"))
+    out += _realism_ablation_checks(cfg)
+    dr = cfg["domain_randomisation"]
+    if dr["enabled"]:
+        bad = [f for f in dr["fractions"] if f not in cfg["split"]["fractions"]]
+        if bad:
+            out.append(f"domain_randomisation.fractions: {bad} not among split.fractions {cfg['split']['fractions']}")
     if cfg["split"]["n_test"] >= sc["n_scenes"]:
         out.append(f"split.n_test: {cfg['split']['n_test']} test scenes leave none of the "
                    f"{sc['n_scenes']} scenes (scenes.n_scenes) for training")
+    return out
+
+
+def _realism_ablation_checks(cfg: dict) -> list[str]:
+    """The one-at-a-time realism ablation needs the realism test set, known effect keys that change
+    something, and configured methods."""
+    ra = cfg["realism_ablation"]
+    if not ra["enabled"]:
+        return []
+    out = []
+    rt = cfg["realism_test"]
+    if not rt["enabled"]:
+        return ["realism_ablation.enabled: needs realism_test.enabled (the effects take its values)"]
+    effects = realism_effects(cfg)
+    if not effects:
+        out.append("realism_ablation.effects: no effect to ablate (realism_test sets none of the standard keys)")
+    for name, keys in effects.items():
+        if not name.replace("_", "").isalnum():
+            out.append(f"realism_ablation.effects.{name}: use letters, digits and '_' only (it becomes a folder name)")
+        for k in keys:
+            if k == "burial_m":
+                if max(rt["burial_m"]) <= 0:
+                    out.append(f"realism_ablation.effects.{name}: burial_m is [0, 0] in realism_test.burial_m, "
+                               "so the effect would change nothing")
+            elif k not in rt["sensor"]:
+                out.append(f"realism_ablation.effects.{name}: key {k!r} is not set in realism_test.sensor "
+                           f"(set there: {sorted(rt['sensor'])})")
+    methods = {f"model_based_{v}" for v in cfg["model_based"]["variants"]}
+    if cfg["sasa"]["enabled"]:
+        methods |= {f"sasa_{f}" for f in cfg["split"]["fractions"]}
+        if cfg["domain_randomisation"]["enabled"]:
+            methods |= {f"sasa_dr_{f}" for f in cfg["domain_randomisation"]["fractions"]}
+    for m in ra["methods"]:
+        if m not in methods:
+            out.append(f"realism_ablation.methods: {m!r} is not a configured method ({sorted(methods)})")
     return out
 
 
@@ -191,6 +233,58 @@ def realism_test_config(cfg: dict) -> dict:
     out = copy.deepcopy(cfg)
     out["sensor"]["realism"] = copy.deepcopy(cfg["realism_test"]["sensor"])
     out["scenes"]["realism"] = {"burial_m": list(cfg["realism_test"]["burial_m"])}
+    return out
+
+
+#: The standard effect groups of the realism ablation: effect -> keys of `realism_test.sensor` (or
+#: `burial_m`) that together make one physical effect.
+REALISM_EFFECT_GROUPS = {
+    "footprint": ["footprint_n_across", "footprint_n_along", "beamwidth_across_deg", "beamwidth_along_deg",
+                  "detection", "detection_switch_deg"],
+    "quantisation": ["range_quantum_m"],
+    "attitude": ["roll_bias_deg", "roll_bias_sigma_deg", "pitch_bias_deg", "pitch_bias_sigma_deg",
+                 "roll_amplitude_deg", "roll_period_s", "pitch_amplitude_deg", "pitch_period_s",
+                 "yaw_amplitude_deg", "yaw_period_s", "heave_amplitude_m", "heave_period_s", "motion_compensated"],
+    "refraction": ["surface_sound_speed_error_mps", "svp_bias_coeff", "svp_bias_sigma"],
+    "outliers": ["outlier_prob", "outlier_magnitude_m", "outlier_outer_power"],
+    "outer_dropouts": ["outer_dropout_prob", "outer_dropout_start_deg"],
+    "line_offsets": ["line_offset_sigma_m"],
+    "roughness": ["object_roughness_sigma_m"],
+    "burial": ["burial_m"],
+}
+
+
+def realism_effects(cfg: dict) -> dict[str, list[str]]:
+    """The effects of the one-at-a-time realism ablation: `realism_ablation.effects`, or when that is
+    empty the standard groups (:data:`REALISM_EFFECT_GROUPS`) restricted to the keys `realism_test`
+    sets (a group with none of them is left out). Empty when the ablation is disabled."""
+    ra = cfg["realism_ablation"]
+    if not ra["enabled"]:
+        return {}
+    if ra["effects"]:
+        return {k: list(v) for k, v in ra["effects"].items()}
+    rt = cfg["realism_test"]
+    out = {}
+    for name, keys in REALISM_EFFECT_GROUPS.items():
+        on = [k for k in keys if (k == "burial_m" and max(rt["burial_m"]) > 0) or k in rt["sensor"]]
+        if on:
+            out[name] = on
+    return out
+
+
+def realism_effect_config(cfg: dict, effect: str) -> dict:
+    """The scene config of one effect of the realism ablation: `cfg` with only the keys of
+    `realism_ablation.effects[effect]` switched on, at their `realism_test` values (`burial_m` stands
+    for the burial of `realism_test.burial_m`; every other effect keeps the objects unburied)."""
+    keys = realism_effects(cfg)[effect]
+    rt = cfg["realism_test"]
+    out = copy.deepcopy(cfg)
+    sensor = {k: copy.deepcopy(rt["sensor"][k]) for k in keys if k != "burial_m"}
+    if sensor:
+        out["sensor"]["realism"] = sensor
+    else:
+        out["sensor"].pop("realism", None)
+    out["scenes"]["realism"] = {"burial_m": list(rt["burial_m"]) if "burial_m" in keys else [0.0, 0.0]}
     return out
 
 

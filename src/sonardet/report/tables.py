@@ -191,6 +191,43 @@ def comparison_table(metrics: dict, classes=None, study: bool = True) -> pd.Data
     return _counts_as_int(df, ["predictions", "ground truth"])
 
 
+def realism_ablation_table(rows, headline_m: float = 0.5) -> pd.DataFrame:
+    """The one-at-a-time realism ablation (rows of `realism_ablation/summary.json`, path or list): one
+    row per effect ('none' = plain sensor first, 'all' = every effect last, the others by the largest
+    loss of any method), columns `mAP@{h}m {method}` and `change {method}` (mAP minus the plain
+    sensor's) per method, and the realism_test keys the effect switches on."""
+    rows = load_json(rows) if not isinstance(rows, list) else rows
+    if not rows:
+        raise ValueError("realism ablation: no rows")
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    col = _mAP_col(headline_m)
+    by = {}
+    for r in rows:
+        e = by.setdefault(r["effect"], {"effect": r["effect"], "keys": ", ".join(r.get("keys", []))})
+        e[f"{col} {r['method']}"] = r["mAP"]
+        e[f"change {r['method']}"] = r["delta_mAP"]
+    effects = [e for e in by if e not in ("none", "all")]
+    effects.sort(key=lambda e: (min(by[e][f"change {m}"] for m in methods), e))
+    order = [e for e in ["none"] if e in by] + effects + [e for e in ["all"] if e in by]
+    cols = ["effect"] + [f"{col} {m}" for m in methods] + [f"change {m}" for m in methods] + ["keys"]
+    return pd.DataFrame([by[e] for e in order], columns=cols)
+
+
+def domain_randomisation_table(metrics: dict, pairs: dict) -> pd.DataFrame:
+    """SASA with and without domain randomisation on every test set.
+
+    metrics: dataset -> {method -> metrics.json path or dict}; pairs: DR method -> plain method (e.g.
+    'sasa_dr_100' -> 'sasa_100'). One row per (dataset, pair): mAP of both and the change."""
+    rows = []
+    for dataset, by_method in metrics.items():
+        for dr, plain in pairs.items():
+            a, b = load_metrics(by_method[plain]), load_metrics(by_method[dr])
+            col = _mAP_col(a["headline_m"])
+            rows.append({"test set": dataset, "model": plain, f"{col} plain": a["mAP_headline"],
+                         f"{col} with DR": b["mAP_headline"], "change": b["mAP_headline"] - a["mAP_headline"]})
+    return pd.DataFrame(rows)
+
+
 def _fraction(key) -> int:
     """25, '25', '25%' or 'sasa_25' -> 25."""
     s = str(key).strip().rstrip("%").strip()

@@ -1,0 +1,109 @@
+# Model-based detection on survey files (config `surveys`), one job per tile, so a large survey scales
+# out on a cluster and a job's memory is bounded by its tile:
+#   checkpoint survey_tiles   survey file -> tiles/{tile}.npz (padded tile points) + tile_index.json
+#   detect_survey_tile        one tile's points -> its detections (survey coordinates)
+#   survey_detections         merge of the tiles (each object once, by the tile owning its centre)
+#                             -> detections.{json,csv,geojson} in the survey's coordinates/CRS
+# The tiles to detect are known only once the survey is read: survey_detections asks the checkpoint's
+# tile index for them. Library: sonardet.detect.survey, sonardet.detect.tiling.
+import sys
+
+from sonardet.detect.survey import enabled_surveys, tile_ids
+
+#: Surveys to run: name -> settings (schema defaults filled in); missing files are reported here.
+SURVEYS, _survey_messages = enabled_surveys(config["surveys"])
+for _message in _survey_messages:
+    print(_message, file=sys.stderr)
+#: Final outputs of every survey.
+SURVEY_OUTPUTS = expand(
+    "results/surveys/{survey}/detections.{ext}",
+    survey=SURVEYS,
+    ext=["json", "csv", "geojson"],
+)
+
+
+wildcard_constraints:
+    survey="|".join(SURVEYS) or "(?!)",
+    tile=r"t[0-9]+_[0-9]+",
+
+
+checkpoint survey_tiles:
+    input:
+        survey=lambda w: SURVEYS[w.survey]["path"],
+        # The object meshes give the largest footprint, the smallest overlap that keeps seams exact.
+        meshes=object_files("ply"),
+        meta=object_files("json"),
+    output:
+        tiles=directory("results/surveys/{survey}/tiles"),
+        index="results/surveys/{survey}/tile_index.json",
+    log:
+        "results/logs/survey_tiles/{survey}.log",
+    benchmark:
+        "results/benchmarks/survey_tiles/{survey}.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        split=lambda w: {
+            k: SURVEYS[w.survey][k]
+            for k in ("crs", "tile_m", "overlap_m", "chunk_points")
+        },
+    script:
+        "../workflow_scripts/survey_tiles.py"
+
+
+rule detect_survey_tile:
+    input:
+        npz="results/surveys/{survey}/tiles/{tile}.npz",
+        meshes=object_files("ply"),
+        meta=object_files("json"),
+        templates=template_files(),
+    output:
+        detections="results/surveys/{survey}/tile_detections/{tile}.json",
+        stats="results/surveys/{survey}/tile_stats/{tile}.json",
+    log:
+        "results/logs/detect_survey_tile/{survey}/{tile}.log",
+    benchmark:
+        "results/benchmarks/detect_survey_tile/{survey}/{tile}.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        variant=lambda w: SURVEYS[w.survey]["method"],
+        detector=lambda w: config["model_based"][SURVEYS[w.survey]["method"]],
+        classes=CLASSES,
+    script:
+        "../workflow_scripts/detect_survey_tile.py"
+
+
+rule survey_detections:
+    input:
+        index="results/surveys/{survey}/tile_index.json",
+        detections=lambda w: expand(
+            "results/surveys/{survey}/tile_detections/{tile}.json",
+            survey=w.survey,
+            tile=tile_ids(checkpoints.survey_tiles.get(survey=w.survey).output.index),
+        ),
+        stats=lambda w: expand(
+            "results/surveys/{survey}/tile_stats/{tile}.json",
+            survey=w.survey,
+            tile=tile_ids(checkpoints.survey_tiles.get(survey=w.survey).output.index),
+        ),
+    output:
+        json="results/surveys/{survey}/detections.json",
+        csv="results/surveys/{survey}/detections.csv",
+        geojson="results/surveys/{survey}/detections.geojson",
+        summary="results/surveys/{survey}/summary.json",
+    log:
+        "results/logs/survey_detections/{survey}.log",
+    benchmark:
+        "results/benchmarks/survey_detections/{survey}.tsv"
+    conda:
+        "../environment.yml"
+    threads: 1
+    params:
+        method=lambda w: f"model_based_{SURVEYS[w.survey]['method']}",
+        source=lambda w: SURVEYS[w.survey]["path"],
+        classes=CLASSES,
+    script:
+        "../workflow_scripts/survey_detections.py"

@@ -1,0 +1,27 @@
+"""Implant simulated objects into a real survey line's seabed (one hybrid scene)."""
+
+import os
+import sys
+
+sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+
+from sonardet.objects import load_object
+from sonardet.sim.hybrid import load_real_survey, simulate_hybrid_scene
+from sonardet.sim.scene import save_scene
+from sonardet.workflow import rule_logging
+
+with rule_logging(snakemake, "simulate_scene_hybrid") as log:  # noqa: F821
+    smk = snakemake  # noqa: F821
+    cfg = smk.params.config
+    objects = {os.path.basename(p)[: -len(".json")]: load_object(p) for p in smk.input.meta}
+    survey = load_real_survey(smk.input.soundings, cfg["hybrid_test"]["crs"])
+    log.info("%s: %d soundings, %d pings, transducer fit rms %.1f mm (median), origin %s", smk.input.soundings,
+             len(survey.xyz), len(survey.pings), 1e3 * float(sorted(survey.fit_rms_m)[len(survey.pings) // 2]),
+             survey.origin.tolist())
+    scene = simulate_hybrid_scene(smk.wildcards.scene, cfg, objects, survey)
+    save_scene(scene, smk.output.npz, smk.output.json)
+    m = scene.meta
+    log.info("%s: %d objects (%d visible), %d objects left out (off the covered seabed), %d soundings moved "
+             "onto objects, timings %s", smk.wildcards.scene, len(m["objects"]),
+             sum(o["visible"] for o in m["objects"]), m["hybrid"]["dropped_outside_coverage"],
+             m["hybrid"]["n_replaced"], {k: round(v, 2) for k, v in m["timings_s"].items()})

@@ -1,0 +1,29 @@
+"""Cut one survey file into tiles (checkpoint survey_tiles): tiles/{tile}.npz and the tile index JSON."""
+
+import os
+import sys
+
+sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+
+from pathlib import Path
+
+from sonardet.detect.survey import object_footprint_m, split_survey
+from sonardet.objects import load_object
+from sonardet.workflow import rule_logging
+
+with rule_logging(snakemake, "survey_tiles") as log:  # noqa: F821
+    smk = snakemake  # noqa: F821
+    survey, cfg = smk.wildcards.survey, smk.params.split
+    objects = {Path(p).stem: load_object(p) for p in smk.input.meta}
+    footprint = object_footprint_m(objects)
+    log.info("%s: largest object footprint %.2f m (classes %s), overlap %g m", survey, footprint,
+             ", ".join(objects), cfg["overlap_m"])
+    try:
+        doc = split_survey(smk.input.survey, smk.output.tiles, smk.output.index, survey=survey,
+                           tile_m=cfg["tile_m"], overlap_m=cfg["overlap_m"], crs=cfg["crs"],
+                           min_overlap_m=footprint, chunk_points=cfg["chunk_points"])
+    except ValueError as exc:
+        raise ValueError(f"surveys.{survey}: {exc}") from exc
+    log.info("%s: %d points, %d tiles (%d x %d, %d with points), origin %s, CRS %s", survey, doc["n_points"],
+             len(doc["tiles"]), doc["nx"], doc["ny"], sum(t["file"] is not None for t in doc["tiles"]),
+             doc["origin"], doc["crs"])
