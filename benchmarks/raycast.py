@@ -1,6 +1,6 @@
 """Throughput of the MBES sensor model against a raw Embree cast of the same rays.
 
-Builds a ~100k-triangle terrain (40 x 40 m) with a few objects, a survey line of 1024-beam pings
+Builds a ~100k-triangle terrain heightfield (40 x 40 m), a survey line of 1024-beam pings
 (about 1 M rays), then times (a) the raw Embree cast of the prebuilt rays through Open3D's
 RaycastingScene and (b) the full sensor model `sonardet.sim.mbes.scan` on the same trajectory
 (ray generation, cast, dropouts, noise, float64 soundings). Prints rays per second of both, their

@@ -141,3 +141,61 @@ def test_empty_inputs_give_empty_output():
     out = scan(RaycastTarget([plane()]), straight_line([0, 0], [1, 0], 0.0, s, 11.5), s,
                np.random.default_rng(0), beams=np.array([], dtype=int))
     assert len(out.xyz) == 0
+
+
+def sounding_bytes(out):
+    return b"".join(a.tobytes() for a in (out.xyz, out.ping, out.beam, out.line, out.mesh)) + \
+        np.array([out.n_rays, out.n_dropped]).tobytes()
+
+
+def test_slab_size_does_not_change_the_output():
+    """scan post-processes each chunk in slabs of pings; the random draws stay per chunk, so any slab
+    size gives the same bytes (straight lines take the same-heading ray path, the arc the general one)."""
+    block = trimesh.creation.box(extents=[3, 2, 1.5])
+    block.apply_translation([0, -4, -10.5])
+    target = RaycastTarget([plane(), (block.vertices, block.faces)], ids=[0, 1])
+    s = SensorConfig(n_beams=96, range_sigma_m=0.05, dropout_prob=0.05, grazing_dropout_prob=0.5,
+                     grazing_start_deg=30)
+    th = np.linspace(0, 1.0, 40)
+    arc = Trajectory(np.c_[6 * np.cos(th), 6 * np.sin(th) - 6, np.zeros(40)], th + np.pi / 2, np.full(40, 2))
+    for traj, kw in ((straight_line([-3, 0], [3, 0], 0.0, s, 11.5), {}),
+                     (straight_line([-3, 0], [3, 0], 0.0, s, 11.5), dict(chunk_rays=1000)),
+                     (arc, dict(beams=np.arange(10, 80, 3), ping_offset=4, chunk_rays=300))):
+        outs = [scan(target, traj, s, np.random.default_rng(7), slab_rays=n, **kw) for n in (1, 250, 1 << 15, 1 << 30)]
+        assert len(outs[0].xyz) > 0 and 0 < outs[0].n_dropped
+        for out in outs[1:]:
+            assert sounding_bytes(out) == sounding_bytes(outs[0])
+
+
+def test_dropout_draws_decided_per_chunk():
+    """Without random dropouts a chunk draws its dropout uniforms only if some beam has a grazing
+    dropout probability > 0; the scan may learn that only at a late slab of the chunk, which must not
+    change what is drawn."""
+    s = SensorConfig(n_beams=64, swath_deg=20, range_sigma_m=0.0, dropout_prob=0.0, grazing_dropout_prob=0.5)
+    # Flat seabed only: no dropout probability anywhere, so no draw at all.
+    rng = np.random.default_rng(3)
+    state = rng.bit_generator.state
+    out = scan(RaycastTarget([plane()]), straight_line([-3, 0], [3, 0], 0.0, s, 11.5), s, rng, slab_rays=64)
+    assert rng.bit_generator.state == state and out.n_dropped == 0
+    # A wedge under the second half of the line: only its slabs reach grazing incidence.
+    wedge = trimesh.creation.box(extents=[2, 4, 1])
+    wedge.apply_transform(trimesh.transformations.rotation_matrix(np.deg2rad(75), [1, 0, 0]))
+    wedge.apply_translation([2.0, 0, -10.0])
+    target = RaycastTarget([plane(), (wedge.vertices, wedge.faces)], ids=[0, 1])
+    traj = straight_line([-3, 0], [3, 0], 0.0, s, 11.5)
+    for chunk_rays in (1 << 20, 64 * 30):
+        outs = [scan(target, traj, s, np.random.default_rng(3), chunk_rays=chunk_rays, slab_rays=n)
+                for n in (64, 64 * 7, 1 << 30)]
+        assert outs[0].n_dropped > 0 and np.all(outs[0].xyz[outs[0].ping < 40, 0] < 1.0)
+        for out in outs[1:]:
+            assert sounding_bytes(out) == sounding_bytes(outs[0])
+
+
+def test_noiseless_output_does_not_depend_on_chunking():
+    s = SensorConfig(n_beams=128, **NOISELESS)
+    traj = straight_line([-3, 0], [3, 0], 0.0, s, 11.5)
+    target = RaycastTarget([plane()])
+    ref = scan(target, traj, s, np.random.default_rng(0))
+    for chunk_rays in (1, 128 * 5, 1000):
+        assert sounding_bytes(scan(target, traj, s, np.random.default_rng(0), chunk_rays=chunk_rays)) == \
+            sounding_bytes(ref)

@@ -205,34 +205,49 @@ class RaycastTarget:
         rays = np.ascontiguousarray(rays, dtype=np.float32)
         out = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=nthreads)
         t = out["t_hit"].numpy()
-        gid = out["geometry_ids"].numpy().astype(np.int64)
-        gid = np.where(gid >= len(self._id_table) - 1, len(self._id_table) - 1, gid)
-        return t, self._id_table[gid], out["primitive_normals"].numpy()
+        gid = np.minimum(out["geometry_ids"].numpy(), np.uint32(len(self._id_table) - 1))
+        return t, self._id_table.take(gid), out["primitive_normals"].numpy()
+
+
+def _starboard(heading_rad: np.ndarray) -> np.ndarray:
+    """Starboard unit vectors (P,2) of pings with headings (P,) rad: travel direction turned
+    clockwise by 90 degrees."""
+    return np.stack([np.sin(heading_rad), -np.cos(heading_rad)], 1)
 
 
 def _fan_geometry(trajectory: Trajectory, angles: np.ndarray):
     """Per-ping starboard unit vectors (P,2) and per-beam sin/cos (B,) of the beam angles."""
-    h = trajectory.heading_rad
-    # Starboard unit vector of each ping: travel direction turned clockwise by 90 degrees.
-    stbd = np.stack([np.sin(h), -np.cos(h)], 1)
-    return stbd, np.sin(angles), np.cos(angles)
+    return _starboard(trajectory.heading_rad), np.sin(angles), np.cos(angles)
 
 
 def build_rays(trajectory: Trajectory, angles: np.ndarray) -> np.ndarray:
     """Rays (P*B, 6) float32 [origin, unit direction] for every ping and beam angle, ping-major."""
     stbd, sa, ca = _fan_geometry(trajectory, angles)
-    p, b = len(trajectory), len(angles)
-    # One broadcast add writes the array once: per-ping part (origin, starboard x/y) times per-beam part.
-    per_ping = np.zeros((p, 1, 6), dtype=np.float32)
-    per_ping[:, 0, 0:3] = trajectory.position
-    if np.all(stbd == stbd[0]):
-        per_beam = np.zeros((1, b, 6), dtype=np.float32)
-        per_beam[0, :, 3] = stbd[0, 0] * sa
-        per_beam[0, :, 4] = stbd[0, 1] * sa
-        per_beam[0, :, 5] = -ca
-        return (per_ping + per_beam).reshape(p * b, 6)
+    return _fan_rays(trajectory.position, stbd, sa, ca, bool(np.all(stbd == stbd[0])))
+
+
+def _fan_rays(position: np.ndarray, stbd: np.ndarray, sa: np.ndarray, ca: np.ndarray,
+              same_heading: bool) -> np.ndarray:
+    """Rays (P*B, 6) float32 of pings at position (P,3) m with starboard unit vectors stbd (P,2) and
+    beam sin/cos sa, ca (B,) (see :func:`_fan_geometry`). same_heading: every row of stbd equals the
+    first; :func:`scan` decides it per chunk, so a chunk's rays have the same bytes in any split."""
+    p, b = len(position), len(sa)
+    if same_heading:
+        # Per-ping origin plus per-beam direction, each + 0.0f as the sum of the two zero-padded parts
+        # always was (it turns -0.0 into +0.0); one row of directions is copied to every ping.
+        per_beam = np.zeros((b, 6), dtype=np.float32)
+        per_beam[:, 3] = stbd[0, 0] * sa
+        per_beam[:, 4] = stbd[0, 1] * sa
+        per_beam[:, 5] = -ca
+        per_beam += np.float32(0.0)
+        origin = position.astype(np.float32) + np.float32(0.0)
+        rays = np.empty((p, b, 6), dtype=np.float32)
+        rays[:] = per_beam
+        for k in range(3):
+            rays[:, :, k] = origin[:, k:k + 1]
+        return rays.reshape(p * b, 6)
     rays = np.empty((p, b, 6), dtype=np.float32)
-    rays[:, :, 0:3] = trajectory.position[:, None, :]
+    rays[:, :, 0:3] = position[:, None, :]
     rays[:, :, 3] = stbd[:, None, 0] * sa[None, :]
     rays[:, :, 4] = stbd[:, None, 1] * sa[None, :]
     rays[:, :, 5] = -ca[None, :]
@@ -267,7 +282,7 @@ class Soundings:
 
 def scan(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rng: np.random.Generator,
          beams: np.ndarray | None = None, ping_offset: int = 0, chunk_rays: int = 1 << 20,
-         nthreads: int = 0) -> Soundings:
+         nthreads: int = 0, slab_rays: int = 1 << 15) -> Soundings:
     """Simulate the soundings of every ping of `trajectory` against `target`.
 
     Per beam: an Embree ray cast from the transducer; beams that hit nothing, random dropouts
@@ -276,6 +291,11 @@ def scan(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rn
     the others get Gaussian range noise N(0, range_sigma_m^2) along the beam. `beams` optionally
     restricts the cast to a subset of beam indices (the others are not modelled at all). Ping
     indices in the output start at ping_offset. Output order is ping-major, beam-minor.
+
+    The random draws are made per chunk of about chunk_rays rays (whole pings), so chunk_rays is
+    part of what defines the output, as the seed is. The plain cast works through each chunk in slabs
+    of about slab_rays rays (whole pings; small enough for the CPU caches); slab_rays changes the
+    speed only, never a byte.
 
     With `sensor.realism` holding an effect that is on, the effects of
     :mod:`sonardet.sim.realism` apply as well (then n_rays counts every sub-ray cast); otherwise
@@ -292,52 +312,111 @@ def scan(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rn
         return _scan_realistic(target, trajectory, sensor, rng, beam_idx, angles_all, ping_offset, chunk_rays,
                                nthreads)
     cos_start = np.float32(np.cos(np.deg2rad(sensor.grazing_start_deg)))
-    pings_per_chunk = max(1, chunk_rays // nb)
-    parts = []
-    for p0 in range(0, len(trajectory), pings_per_chunk):
-        sl = slice(p0, p0 + pings_per_chunk)
-        traj = Trajectory(trajectory.position[sl], trajectory.heading_rad[sl], trajectory.line[sl])
-        npg = len(traj)
-        t, mesh_id, normals = target.cast(build_rays(traj, angles), nthreads)
-        # Work on the (ping, beam) grid with broadcasting: no per-ray gathers until the final compress.
-        stbd, sa, ca = _fan_geometry(traj, angles)
-        t = t.reshape(npg, nb)
+    grazing = sensor.grazing_dropout_prob > 0 and cos_start > 0
+    p_base, p_grazing = np.float32(sensor.dropout_prob), np.float32(sensor.grazing_dropout_prob)
+    sigma = np.float32(sensor.range_sigma_m)
+    pos, line16 = trajectory.position, trajectory.line.astype(np.int16)
+    sa, ca = np.sin(angles), np.cos(angles)
+    per_chunk = max(1, chunk_rays // nb)
+    per_slab = min(per_chunk, max(1, slab_rays // nb))
+    beam_grid = np.broadcast_to(beam_idx.astype(np.int16), (per_slab, nb)).ravel()
+    out = _SoundingBuffer(len(trajectory) * nb)
+
+    def emit(s0, s1, stbd, t, mesh_id, p_drop, u_drop, noise):
+        """Soundings of pings s0:s1 (stbd (n,2), t, mesh_id (n,B); u_drop, noise: their rows of the
+        chunk's draws or None)."""
         hit = np.isfinite(t)
-        keep = hit.copy()
-        p_drop = np.full((npg, nb), np.float32(sensor.dropout_prob), dtype=np.float32)
-        if sensor.grazing_dropout_prob > 0 and cos_start > 0:
-            n = normals.reshape(npg, nb, 3)
-            dx = (stbd[:, 0:1] * sa[None, :]).astype(np.float32)
-            dy = (stbd[:, 1:2] * sa[None, :]).astype(np.float32)
-            cos_inc = np.abs(dx * n[:, :, 0] + dy * n[:, :, 1] - ca.astype(np.float32)[None, :] * n[:, :, 2])
-            u = np.clip((cos_start - cos_inc) / cos_start, 0.0, 1.0)
-            p_drop += np.float32(sensor.grazing_dropout_prob) * u * u
-        if np.any(p_drop > 0):
-            keep &= rng.random((npg, nb), dtype=np.float32) >= p_drop
-        r = t
-        if sensor.range_sigma_m > 0:
-            r = t + np.float32(sensor.range_sigma_m) * rng.standard_normal((npg, nb), dtype=np.float32)
-        # Soundings on the full grid in float64 (contiguous, vectorised), then one boolean compress.
-        # Missed beams (t = inf) give inf/nan there, which the compress drops.
+        keep = hit if u_drop is None else hit & (u_drop >= p_drop)
+        r = t if noise is None else t + sigma * noise
+        idx = np.flatnonzero(keep)
+        counts = keep.sum(1)
+        xyz = out.xyz(len(idx))
+        # Soundings on the slab's grid in float64, then gathered. Missed beams (t = inf) give inf/nan
+        # there, which the gather skips.
         with np.errstate(invalid="ignore"):
-            sr = sa[None, :] * r
-            xyz = np.stack([
-                (traj.position[:, 0:1] + stbd[:, 0:1] * sr)[keep],
-                (traj.position[:, 1:2] + stbd[:, 1:2] * sr)[keep],
-                (traj.position[:, 2:3] - ca[None, :] * r)[keep],
-            ], 1)
-        ping = np.broadcast_to(np.arange(p0 + ping_offset, p0 + ping_offset + npg, dtype=np.int32)[:, None],
-                               (npg, nb))[keep]
-        parts.append(Soundings(
-            xyz=xyz,
-            ping=ping,
-            beam=np.broadcast_to(beam_idx.astype(np.int16)[None, :], (npg, nb))[keep],
-            line=np.broadcast_to(traj.line.astype(np.int16)[:, None], (npg, nb))[keep],
-            mesh=mesh_id.reshape(npg, nb)[keep],
-            n_rays=npg * nb,
-            n_dropped=int(hit.sum() - len(xyz)),
-        ))
-    return Soundings.concatenate(parts)
+            sr = sa * r
+            for k in range(2):
+                xyz[:, k] = (pos[s0:s1, k:k + 1] + stbd[:, k:k + 1] * sr).ravel().take(idx)
+            xyz[:, 2] = (pos[s0:s1, 2:3] - ca * r).ravel().take(idx)
+        out.add(ping=np.repeat(np.arange(s0 + ping_offset, s1 + ping_offset, dtype=np.int32), counts),
+                beam=beam_grid.take(idx), line=np.repeat(line16[s0:s1], counts), mesh=mesh_id.ravel().take(idx),
+                n_rays=t.size, n_dropped=np.count_nonzero(hit) - len(idx))
+
+    # One thread, slab after slab: Open3D's cast_rays holds the GIL (0.20), so a worker thread casting
+    # the next slab would not overlap the numpy work on this one (measured: no gain).
+    for c0 in range(0, len(trajectory), per_chunk):
+        c1 = min(c0 + per_chunk, len(trajectory))
+        stbd = _starboard(trajectory.heading_rad[c0:c1])
+        same_heading = bool(np.all(stbd == stbd[0]))
+        # The chunk draws its dropout uniforms only if some beam has a dropout probability > 0; with
+        # grazing dropouts that is known once a slab shows one, else after the chunk's last slab.
+        draw_u = None if grazing else bool(p_base > 0)
+        drawn, u_drop, noise = False, None, None
+        waiting = []
+        for s0 in range(c0, c1, per_slab):
+            s1 = min(s0 + per_slab, c1)
+            n = s1 - s0
+            rays = _fan_rays(pos[s0:s1], stbd[s0 - c0:s1 - c0], sa, ca, same_heading)
+            t, mesh_id, normals = target.cast(rays, nthreads)
+            p_drop = p_base
+            if grazing:
+                # Incidence from the float32 directions of the rays: the same bytes as float32(stbd * sin)
+                # and -float32(cos); one row of them serves every ping of a same-heading chunk.
+                d = rays.reshape(n, nb, 6)[:1 if same_heading else n, :, 3:6]
+                nrm = normals.reshape(n, nb, 3)
+                c = d[..., 0] * nrm[..., 0]
+                c += d[..., 1] * nrm[..., 1]
+                c += d[..., 2] * nrm[..., 2]
+                np.abs(c, out=c)
+                u = np.clip((cos_start - c) / cos_start, 0.0, 1.0)
+                p_drop = p_base + p_grazing * u * u
+                if draw_u is None and np.any(p_drop > 0):
+                    draw_u = True
+            waiting.append((s0, s1, t.reshape(n, nb), mesh_id.reshape(n, nb), p_drop))
+            if draw_u is None and s1 < c1:
+                continue
+            if not drawn:
+                if draw_u:
+                    u_drop = rng.random((c1 - c0, nb), dtype=np.float32)
+                if sensor.range_sigma_m > 0:
+                    noise = rng.standard_normal((c1 - c0, nb), dtype=np.float32)
+                drawn = True
+            for w0, w1, t, mesh_id, p_drop in waiting:
+                rows = slice(w0 - c0, w1 - c0)
+                emit(w0, w1, stbd[rows], t, mesh_id, p_drop, None if u_drop is None else u_drop[rows],
+                     None if noise is None else noise[rows])
+            waiting.clear()
+    return out.soundings()
+
+
+class _SoundingBuffer:
+    """Soundings appended slab by slab into arrays sized for every ray cast (pages never written are
+    never committed), handed out trimmed: no concatenation copy at the end."""
+
+    def __init__(self, n_max: int):
+        self._xyz = np.empty((n_max, 3))
+        self._ping = np.empty(n_max, np.int32)
+        self._beam = np.empty(n_max, np.int16)
+        self._line = np.empty(n_max, np.int16)
+        self._mesh = np.empty(n_max, np.int32)
+        self.n = self.n_rays = self.n_dropped = 0
+
+    def xyz(self, m: int) -> np.ndarray:
+        """The next m rows of positions, to be written before :meth:`add` commits them."""
+        return self._xyz[self.n:self.n + m]
+
+    def add(self, ping, beam, line, mesh, n_rays: int, n_dropped: int):
+        m = len(ping)
+        for dst, src in ((self._ping, ping), (self._beam, beam), (self._line, line), (self._mesh, mesh)):
+            dst[self.n:self.n + m] = src
+        self.n += m
+        self.n_rays += n_rays
+        self.n_dropped += n_dropped
+
+    def soundings(self) -> Soundings:
+        n = self.n
+        return Soundings(self._xyz[:n], self._ping[:n], self._beam[:n], self._line[:n], self._mesh[:n],
+                         self.n_rays, self.n_dropped)
 
 
 def _scan_realistic(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rng: np.random.Generator,
