@@ -258,7 +258,8 @@ def simulate_hybrid_scene(scene_id: str, config: dict, objects: dict[str, Object
     timings["grid_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    classes = list(objects)
+    # The layout draws per class in the config's order, whatever the order of `objects`.
+    classes = [c for c in config["classes"] if c in objects] + [c for c in objects if c not in config["classes"]]
     area = float((hi[0] - lo[0]) * (hi[1] - lo[1]))
     counts_cfg = dict(sc)
     scale = area / float(sc["extent_m"][0] * sc["extent_m"][1])

@@ -111,7 +111,8 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
 
     # Layout.
     t0 = time.perf_counter()
-    classes = list(objects)
+    # The layout draws per class in the config's order, whatever the order of `objects`.
+    classes = [c for c in config["classes"] if c in objects] + [c for c in objects if c not in config["classes"]]
     counts = _class_counts(sc, classes, rngs["layout"]) if classes else {}
     verts = {c: np.asarray(o.mesh.vertices) for c, o in objects.items()}
     radius = {c: float(np.max(np.hypot(v[:, 0], v[:, 1]))) for c, v in verts.items()}
