@@ -68,12 +68,12 @@ rule realism_ablation:
         detections=expand(
             "results/detections/{method}/{dataset}/{scene}.json",
             method=config["realism_ablation"]["methods"],
-            dataset=["synthetic", "realism"] + list(REALISM_EFFECTS.values()),
+            dataset=REALISM_ABLATION_DATASETS,
             scene=REALISM_ABLATION_SCENES,
         ),
         labels=[
             dataset_scene_file(d, s, "json")
-            for d in ["synthetic", "realism"] + list(REALISM_EFFECTS.values())
+            for d in REALISM_ABLATION_DATASETS
             for s in REALISM_ABLATION_SCENES
         ],
         meta=object_files("json"),
@@ -89,10 +89,7 @@ rule realism_ablation:
         effects=REALISM_EFFECTS,
         effect_keys=REALISM_EFFECT_KEYS,
         scenes=REALISM_ABLATION_SCENES,
-        dirs={
-            d: DATASET_DIRS[d]
-            for d in ["synthetic", "realism"] + list(REALISM_EFFECTS.values())
-        },
+        dirs={d: DATASET_DIRS[d] for d in REALISM_ABLATION_DATASETS},
         evaluation=config["evaluation"],
         classes=CLASSES,
     script:

@@ -73,6 +73,8 @@ REALISM_ABLATION_SCENES = SPLIT["test"][: config["realism_ablation"]["n_scenes"]
 for _effect, _dataset in REALISM_EFFECTS.items():
     DATASETS[_dataset] = REALISM_ABLATION_SCENES
     DATASET_DIRS[_dataset] = f"results/realism_ablation/{_effect}/scenes"
+#: Datasets of the realism ablation's summary: plain sensor, every effect, one effect at a time.
+REALISM_ABLATION_DATASETS = ["synthetic", "realism"] + list(REALISM_EFFECTS.values())
 #: Datasets evaluated on their own (the ablation datasets are evaluated together, in one job).
 EVAL_DATASETS = [d for d in DATASETS if d not in REALISM_EFFECTS.values()]
 #: Ablation grid points by name, and the test scenes they run on.

@@ -31,12 +31,7 @@ rule sasa_train:
 
 
 # The same training with domain randomisation (config domain_randomisation): sasa_dr_{fraction}.
-rule sasa_train_dr:
-    input:
-        train=lambda w: split_scene_files(f"train_{w.fraction}", "npz"),
-        train_labels=lambda w: split_scene_files(f"train_{w.fraction}", "json"),
-        val=split_scene_files("val", "npz"),
-        val_labels=split_scene_files("val", "json"),
+use rule sasa_train as sasa_train_dr with:
     output:
         model="results/models/sasa_dr_{fraction}/model.pt",
         loss="results/models/sasa_dr_{fraction}/loss.csv",
@@ -45,12 +40,6 @@ rule sasa_train_dr:
         "results/logs/sasa_train_dr/{fraction}.log",
     benchmark:
         "results/benchmarks/sasa_train_dr/{fraction}.tsv"
-    priority: 10
-    conda:
-        "../environment.yml"
-    threads: config["sasa"]["threads"]
-    resources:
-        mem_mb=6000,
     params:
         # The configured SASA settings with the dr_* keys on top (sonardet.detect.sasa.config).
         sasa={
@@ -63,8 +52,6 @@ rule sasa_train_dr:
         },
         seed=config["seed"],
         classes=CLASSES,
-    script:
-        "../workflow_scripts/sasa_train.py"
 
 
 # One inference rule per evaluation dataset: a job loads the model once for all of the dataset's scenes.

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sonardet.config import validate_config
@@ -52,4 +54,39 @@ def built_objects(default_config):
     return {c: build_object(c, default_config["objects"]) for c in default_config["classes"]}
 
 
-__all__ = ["REAL_DIR", "REAL_FILE", "REPO", "needs_real", "validate_config"]
+@pytest.fixture
+def one_torch_thread():
+    """Tiny models issue many small ops: one thread is fastest and immune to a busy machine."""
+    import torch
+
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+def copy_workflow(work: Path) -> Path:
+    """Copy what a Snakemake run needs (Snakefile, rules, scripts, config, profiles, library) into `work`."""
+    for name in ("Snakefile", "rules", "workflow_scripts", "config", "profiles", "src", "environment.yml"):
+        src = REPO / name
+        if src.is_dir():
+            shutil.copytree(src, work / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy(src, work / name)
+    return work
+
+
+def match_by_centre(a: list, b: list) -> list[tuple[dict, dict, float]]:
+    """Greedy one-to-one matching of detections by box-centre distance (m), closest pairs first."""
+    pairs = sorted((float(np.linalg.norm(np.subtract(x["box"][:3], y["box"][:3]))), i, j)
+                   for i, x in enumerate(a) for j, y in enumerate(b))
+    used_a, used_b, out = set(), set(), []
+    for d, i, j in pairs:
+        if i not in used_a and j not in used_b:
+            used_a.add(i)
+            used_b.add(j)
+            out.append((a[i], b[j], d))
+    return out
+
+
+__all__ = ["REAL_DIR", "REAL_FILE", "REPO", "copy_workflow", "match_by_centre", "needs_real", "validate_config"]

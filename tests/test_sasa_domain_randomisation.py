@@ -30,6 +30,8 @@ from sonardet.detect.sasa.data import (
 )
 from sonardet.geometry import points_in_box
 
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 tr = importlib.import_module("sonardet.detect.sasa.trainer")  # the module (the package exports train())
 
 #: Every effect off (zero ranges): a test turns on only the one it checks.
@@ -48,14 +50,6 @@ OFF = {
     "dr_density_contrast": [1.0, 1.0],
 }
 FOUR = ["reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s"]
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
 
 
 @pytest.fixture

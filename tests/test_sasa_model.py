@@ -23,6 +23,8 @@ from sonardet.detect.sasa.trainer import _make_batch, evaluate_scenes
 from sonardet.geometry import box_corners as np_box_corners
 from sonardet.geometry import points_in_box
 
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 SIZES = {  # l, w, h (m) of the four classes, as in the default objects
     "reef_ring": (2.7, 2.7, 0.8),
     "reef_cone": (2.0, 2.0, 1.4),
@@ -104,15 +106,6 @@ def make_scene(tmp_path, sid, seed, classes, extent=14.0, density=40.0, origin=(
            "objects": objects}
     (tmp_path / f"{sid}.json").write_text(json.dumps(doc))
     return npz
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    """Tiny models issue many small ops: one thread is fastest and immune to a busy machine."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
 
 
 def _batch(tmp_path, params, classes_per_scene=(("reef_ring", "tetrapod_b"), ("reef_cone", "tetrapod_s")), aug=False):

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import gzip
 import json
-import shutil
 import subprocess
 import sys
 import time
@@ -21,7 +20,7 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import REPO
+from conftest import REPO, copy_workflow, match_by_centre
 
 from sonardet.config import ConfigError, validate_config
 from sonardet.detect.survey import (enabled_surveys, merge_survey_detections, object_footprint_m, open_survey,
@@ -357,12 +356,7 @@ def survey_run(tmp_path_factory, smoke_config):
     synthetic 30 m x 20 m survey (12 m tiles: 3 x 2 tiles) in UTM coordinates, read in 5000-point chunks.
     The default config's real line is also configured, at a path that does not exist from here."""
     work = tmp_path_factory.mktemp("survey")
-    for name in ("Snakefile", "rules", "workflow_scripts", "config", "profiles", "src", "environment.yml"):
-        src = REPO / name
-        if src.is_dir():
-            shutil.copytree(src, work / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"))
-        else:
-            shutil.copy(src, work / name)
+    copy_workflow(work)
     xyz, truth = _scene_survey(smoke_config)
     (work / "data").mkdir()
     write_points(work / "data" / "reef_test.xyz.gz", PointCloud(xyz))
@@ -379,19 +373,6 @@ def survey_run(tmp_path_factory, smoke_config):
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return SimpleNamespace(work=work, truth=truth, log=proc.stdout + proc.stderr, seconds=seconds,
                            out=work / "results" / "surveys" / "reef_test")
-
-
-def _match(a, b):
-    """Greedy one-to-one matching by box-centre distance (m), closest pairs first."""
-    pairs = sorted((float(np.linalg.norm(np.subtract(x["box"][:3], y["box"][:3]))), i, j)
-                   for i, x in enumerate(a) for j, y in enumerate(b))
-    used_a, used_b, out = set(), set(), []
-    for d, i, j in pairs:
-        if i not in used_a and j not in used_b:
-            used_a.add(i)
-            used_b.add(j)
-            out.append((a[i], b[j], d))
-    return out
 
 
 @pytest.mark.slow
@@ -434,14 +415,14 @@ def test_merged_detections_equal_the_cli_and_have_no_duplicate(survey_run, tmp_p
     ref = read_detections(cli_out)["detections"]
     got = doc["detections"]
     assert len(got) == len(ref) > 0
-    pairs = _match(got, ref)
+    pairs = match_by_centre(got, ref)
     assert all(a["cls"] == b["cls"] and d < 0.05 and a["score"] == pytest.approx(b["score"], abs=1e-6)
                for a, b, d in pairs)
     # Each object once: one accepted detection within 0.1 m of every object, none near another.
     acc = [d for d in got if d["extras"]["accepted"]]
     truth = [{"cls": c, "box": list(b)} for c, b in survey_run.truth]
     assert len(acc) == len(truth)
-    assert all(a["cls"] == t["cls"] and d < 0.1 for a, t, d in _match(acc, truth))
+    assert all(a["cls"] == t["cls"] and d < 0.1 for a, t, d in match_by_centre(acc, truth))
     c = np.array([d["box"][:2] for d in acc])
     dist = np.hypot(*(c[:, None] - c[None]).transpose(2, 0, 1))
     assert dist[np.triu_indices(len(c), 1)].min() > 1.0

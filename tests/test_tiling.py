@@ -14,6 +14,7 @@ import logging
 
 import numpy as np
 import pytest
+from conftest import match_by_centre
 
 from sonardet.detect.tiling import detect_tiled, merge_tile_detections, plan_tiles, tile_points
 
@@ -288,19 +289,6 @@ def _survey(objects, sensor, extent_m: float):
     return xyz[inside], truth
 
 
-def _match(a: list, b: list) -> list[tuple[dict, dict, float]]:
-    """Greedy one-to-one matching of detections by box-centre distance (m), closest pairs first."""
-    pairs = sorted((float(np.linalg.norm(np.subtract(x["box"][:3], y["box"][:3]))), i, j)
-                   for i, x in enumerate(a) for j, y in enumerate(b))
-    used_a, used_b, out = set(), set(), []
-    for d, i, j in pairs:
-        if i not in used_a and j not in used_b:
-            used_a.add(i)
-            used_b.add(j)
-            out.append((a[i], b[j], d))
-    return out
-
-
 @pytest.fixture(scope="module")
 def whole_and_tiled(models):
     """The 120 m survey detected once as a whole (local coordinates) and once in 3 x 3 tiles of 40 m
@@ -347,9 +335,9 @@ def test_tiled_run_finds_the_objects_of_one_big_tile(whole_and_tiled):
     # The scene is detectable (else the comparison says nothing): every object found by the whole run.
     assert len(acc_w) == len(truth)
     assert all(d < 0.1 and a["cls"] == t["cls"] for a, t, d in
-               _match(acc_w, [{"cls": c, "box": list(b)} for c, b in truth]))
+               match_by_centre(acc_w, [{"cls": c, "box": list(b)} for c, b in truth]))
     assert len(acc_t) == len(acc_w)
-    pairs = _match(acc_w, acc_t)
+    pairs = match_by_centre(acc_w, acc_t)
     assert all(a["cls"] == b["cls"] for a, b, _ in pairs)
     worst = max(d for _, _, d in pairs)
     assert worst < 0.1, f"tiled vs whole: a centre moved {worst:.3f} m"
@@ -371,5 +359,5 @@ def test_tiled_run_equals_one_big_tile(whole_and_tiled):
     ring fit moved 7.1 cm between the two runs)."""
     _, whole, tiled, _ = whole_and_tiled
     assert len(tiled) == len(whole)
-    pairs = _match(whole, tiled)
+    pairs = match_by_centre(whole, tiled)
     assert all(a["cls"] == b["cls"] and d < 0.05 for a, b, d in pairs)

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import REAL_FILE, REPO
+from conftest import REAL_FILE, REPO, copy_workflow
 from sonardet.objects import load_object
 from sonardet.sim.templates import load_templates
 
@@ -19,12 +19,7 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def smoke_run(tmp_path_factory):
     work = tmp_path_factory.mktemp("smoke")
-    for name in ("Snakefile", "rules", "workflow_scripts", "config", "profiles", "src", "environment.yml"):
-        src = REPO / name
-        if src.is_dir():
-            shutil.copytree(src, work / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"))
-        else:
-            shutil.copy(src, work / name)
+    copy_workflow(work)
     cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "--configfile", "config_smoke.yaml"]
     shutil.copy(REPO / "tests" / "config" / "smoke.yaml", work / "config_smoke.yaml")
     if REAL_FILE is not None:

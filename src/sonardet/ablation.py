@@ -53,6 +53,19 @@ def _ground_truth(scene_jsons) -> dict:
     return gt
 
 
+def _detections(detection_jsons, classes) -> dict:
+    """scene id -> detections of each detection file."""
+    out = {}
+    for p in detection_jsons:
+        doc = read_detections(p, classes)
+        out[doc["scene"]] = doc["detections"]
+    return out
+
+
+def _object_metas(objects_dir, classes) -> list[dict]:
+    return [json.loads((Path(objects_dir) / f"{c}.json").read_text()) for c in classes]
+
+
 def _evaluate(gt: dict, dets: dict, classes, evaluation: dict, objects_meta: list[dict]) -> dict:
     symmetric = [m["cls"] for m in objects_meta if m["rotationally_symmetric"]]
     periods = {m["cls"]: 2 * math.pi / m["symmetry_order"] for m in objects_meta if m["symmetry_order"] > 1}
@@ -82,7 +95,7 @@ def run_point(point: dict, scene_npzs: list[str], scene_jsons: list[str], base_p
 
     method = point["method"]
     objects_dir, templates_dir, work_dir = Path(objects_dir), Path(templates_dir), Path(work_dir)
-    metas = [json.loads((objects_dir / f"{c}.json").read_text()) for c in classes]
+    metas = _object_metas(objects_dir, classes)
     gt = _ground_truth(scene_jsons)
     out = {"name": point["name"], "method": method, "params": point.get("params", {}),
            "fraction": point.get("fraction"), "n_scenes": len(scene_npzs), "train_time_s": None}
@@ -133,13 +146,9 @@ def reference_point(name: str, method: str, detection_jsons: list[str], scene_js
     seconds_per_scene: the method's time per scene on those scenes (model-based: detector seconds from
     its stats files; SASA: inference seconds per scene).
     """
-    objects_dir = Path(objects_dir)
-    metas = [json.loads((objects_dir / f"{c}.json").read_text()) for c in classes]
+    metas = _object_metas(objects_dir, classes)
     gt = _ground_truth(scene_jsons)
-    dets = {}
-    for p in detection_jsons:
-        doc = read_detections(p, classes)
-        dets[doc["scene"]] = doc["detections"]
+    dets = _detections(detection_jsons, classes)
     out = {"name": name, "method": method, "params": {}, "fraction": fraction, "n_scenes": len(detection_jsons),
            "train_time_s": train_time_s, "default": True}
     out.update(_evaluate(gt, dets, classes, evaluation, metas))
@@ -160,16 +169,12 @@ def realism_effect_rows(methods: list[str], datasets: dict[str, tuple[str, list[
     files (burial and visibility change with the effect). Returns one row per (effect, method) with
     mAP, AP per class, n_gt and delta_mAP = mAP - mAP on "none".
     """
-    objects_dir = Path(objects_dir)
-    metas = [json.loads((objects_dir / f"{c}.json").read_text()) for c in classes]
+    metas = _object_metas(objects_dir, classes)
     rows = []
     for effect, (dataset, folder) in datasets.items():
         gt = _ground_truth([Path(folder) / f"{s}.json" for s in scenes])
         for m in methods:
-            dets = {}
-            for s in scenes:
-                doc = read_detections(Path(detections_root) / m / dataset / f"{s}.json", classes)
-                dets[doc["scene"]] = doc["detections"]
+            dets = _detections([Path(detections_root) / m / dataset / f"{s}.json" for s in scenes], classes)
             r = _evaluate(gt, dets, classes, evaluation, metas)
             rows.append({"effect": effect, "dataset": dataset, "method": m, "n_scenes": len(scenes), **r})
     base = {r["method"]: r["mAP"] for r in rows if r["effect"] == "none"}

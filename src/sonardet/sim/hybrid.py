@@ -40,12 +40,9 @@ from .. import SCHEMA_VERSION
 from ..config import config_hash, derive_seed
 from ..geometry import quat_to_matrix
 from ..objects import ObjectInfo
-from ..objects.catalog import canonical_box
 from .layout import plan_layout
 from .mbes import RaycastTarget
-from .physics import RigidBody, settle
-from .realism import burial_depths
-from .scene import Scene, _class_counts
+from .scene import Scene, annotate_objects, bury_objects, class_counts, settle_spawns
 from .seabed import Heightfield
 
 log = logging.getLogger(__name__)
@@ -89,7 +86,7 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def read_soundings(path, crs: str = "") -> tuple[pd.DataFrame, str]:
+def read_soundings(path) -> tuple[pd.DataFrame, str]:
     """Read a soundings table (CSV with header, gzip or not) with at least the columns
     ``ping, range_m, x, y, z`` (slant range in m; x, y, z in the survey's projected CRS, z up) and
     optionally ``beam`` and ``accepted`` (rows with accepted == 0 are left out). Errors name the file,
@@ -166,7 +163,7 @@ def estimate_sensor_positions(xyz: np.ndarray, ping: np.ndarray, range_m: np.nda
 def load_real_survey(path, crs: str = "") -> RealSurvey:
     """Read a soundings table (:func:`read_soundings`), shift it to a local origin (whole metres below
     the minimum x and y; z unchanged) and estimate the transducer track."""
-    df, sha = read_soundings(path, crs)
+    df, sha = read_soundings(path)
     x, y, z = (df[c].to_numpy(np.float64) for c in ("x", "y", "z"))
     origin = np.array([np.floor(x.min()), np.floor(y.min()), 0.0])
     xyz = np.column_stack([x - origin[0], y - origin[1], z])
@@ -264,7 +261,7 @@ def simulate_hybrid_scene(scene_id: str, config: dict, objects: dict[str, Object
     counts_cfg = dict(sc)
     scale = area / float(sc["extent_m"][0] * sc["extent_m"][1])
     counts_cfg["n_objects"] = [int(round(n * scale)) for n in sc["n_objects"]]
-    counts = _class_counts(counts_cfg, classes, rngs["layout"]) if classes else {}
+    counts = class_counts(counts_cfg, classes, rngs["layout"]) if classes else {}
     verts = {c: np.asarray(o.mesh.vertices) for c, o in objects.items()}
     radius = {c: float(np.max(np.hypot(v[:, 0], v[:, 1]))) for c, v in verts.items()}
     height = {c: float(o.extents_m[2]) for c, o in objects.items()}
@@ -284,27 +281,9 @@ def simulate_hybrid_scene(scene_id: str, config: dict, objects: dict[str, Object
     timings["layout_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    ph = sc["physics"]
-    bodies = [RigidBody(f"o{k}", objects[s.cls].convex_parts, objects[s.cls].mass_kg, s.t, s.q)
-              for k, s in enumerate(spawns)]
-    removed = []
-    kept = []
-    phys = {"n_steps": 0, "sim_time_s": 0.0, "all_at_rest": True}
-    if spawns:
-        res = settle(bodies, hf, rng=rngs["physics"], max_time_s=ph["max_time_s"], dt_s=ph["dt_s"],
-                     lin_vel_tol=ph["lin_vel_tol"], ang_vel_tol=ph["ang_vel_tol"],
-                     settle_window_s=ph["settle_window_s"], bounds_xy=(lo[0], hi[0], lo[1], hi[1]),
-                     friction=ph["friction"], sleep=ph["sleep"])
-        for rb in res.removed:
-            k = int(rb.name[1:])
-            removed.append({"cls": spawns[k].cls, "reason": rb.reason, "arrangement": spawns[k].arrangement})
-            log.warning("%s: removed %s (%s) during settling: %s", scene_id, rb.name, spawns[k].cls, rb.reason)
-        kept = [(int(n[1:]), res.pos[i], res.quat[i]) for i, n in enumerate(res.names)]
-        phys = {"n_steps": res.n_steps, "sim_time_s": res.sim_time_s, "all_at_rest": res.all_at_rest}
-    buried = None
-    if kept and max(hy["burial_m"]) > 0:
-        buried = burial_depths([spawns[k].group for k, _, _ in kept], hy["burial_m"], rngs["burial"])
-        kept = [(k, np.asarray(t, dtype=np.float64) - [0.0, 0.0, d], q) for (k, t, q), d in zip(kept, buried)]
+    _, kept, removed, phys = settle_spawns(scene_id, spawns, objects, hf, sc["physics"], rngs["physics"],
+                                           (lo[0], hi[0], lo[1], hi[1]))
+    kept, buried = bury_objects(kept, spawns, hy["burial_m"], rngs["burial"])
     timings["physics_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -315,21 +294,7 @@ def simulate_hybrid_scene(scene_id: str, config: dict, objects: dict[str, Object
     xyz, label = implant(survey, posed, float(config["sensor"]["range_sigma_m"]), rngs["sensor"])
     timings["implant_s"] = time.perf_counter() - t0
 
-    n_pts = np.bincount(label[label >= 0], minlength=len(kept))
-    objs = []
-    for idx, (k, t, q) in enumerate(kept):
-        sp = spawns[k]
-        obj = objects[sp.cls]
-        objs.append({
-            "id": idx, "cls": sp.cls,
-            "pose": {"t": [float(v) for v in t], "q": [float(v) for v in q]},
-            "box": [float(v) for v in canonical_box(obj.mesh.vertices, t, q, obj.symmetry_order)],
-            "n_points": int(n_pts[idx]),
-            "visible": bool(n_pts[idx] >= sc["min_points_visible"]),
-            "arrangement": sp.arrangement, "group": int(sp.group), "layer": int(sp.layer),
-        })
-        if buried is not None:
-            objs[-1]["burial_m"] = float(buried[idx])
+    objs = annotate_objects(kept, spawns, objects, label, sc["min_points_visible"], buried)
     alt = survey.sensor[:, 2].mean() - float(np.median(survey.xyz[:, 2]))
     meta = {
         "schema_version": SCHEMA_VERSION,

@@ -54,7 +54,8 @@ class Scene:
     meta: dict = field(default_factory=dict)
 
 
-def _class_counts(cfg: dict, classes: list[str], rng) -> dict:
+def class_counts(cfg: dict, classes: list[str], rng) -> dict:
+    """Objects per class of one scene: a total drawn from `cfg["n_objects"]` split by `cfg["class_mix"]`."""
     n = int(rng.integers(cfg["n_objects"][0], cfg["n_objects"][1] + 1))
     mix = np.array([cfg["class_mix"].get(c, 0.0) for c in classes], dtype=np.float64)
     if mix.sum() <= 0:
@@ -113,7 +114,7 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
     t0 = time.perf_counter()
     # The layout draws per class in the config's order, whatever the order of `objects`.
     classes = [c for c in config["classes"] if c in objects] + [c for c in objects if c not in config["classes"]]
-    counts = _class_counts(sc, classes, rngs["layout"]) if classes else {}
+    counts = class_counts(sc, classes, rngs["layout"]) if classes else {}
     verts = {c: np.asarray(o.mesh.vertices) for c, o in objects.items()}
     radius = {c: float(np.max(np.hypot(v[:, 0], v[:, 1]))) for c, v in verts.items()}
     height = {c: float(o.extents_m[2]) for c, o in objects.items()}
@@ -146,43 +147,23 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
 
     # Physics.
     t0 = time.perf_counter()
-    ph = sc["physics"]
-    bodies = [RigidBody(f"o{k}", objects[s.cls].convex_parts, objects[s.cls].mass_kg, s.t, s.q)
-              for k, s in enumerate(spawns)]
-    bodies += [RigidBody(f"rock{k}", [np.asarray(m.vertices)], 1.0, pos, static=True)
-               for k, (m, pos) in enumerate(rocks)]
-    removed = []
-    if spawns:
-        res = settle(bodies, hf, rng=rngs["physics"], max_time_s=ph["max_time_s"], dt_s=ph["dt_s"],
-                     lin_vel_tol=ph["lin_vel_tol"], ang_vel_tol=ph["ang_vel_tol"],
-                     settle_window_s=ph["settle_window_s"], bounds_xy=extent, friction=ph["friction"],
-                     sleep=ph["sleep"])
+    rock_bodies = [RigidBody(f"rock{k}", [np.asarray(m.vertices)], 1.0, pos, static=True)
+                   for k, (m, pos) in enumerate(rocks)]
+    res, kept, removed, phys = settle_spawns(scene_id, spawns, objects, hf, sc["physics"], rngs["physics"],
+                                             extent, rock_bodies)
+    if res is not None:
         gone_rocks = {int(rb.name[4:]) for rb in res.removed if rb.name.startswith("rock")}
         for k in sorted(gone_rocks):
             log.warning("%s: rock %d rejected by the physics (%s); not scanned", scene_id, k, "bad start")
             rock_meta[k]["removed"] = True
         rocks = [r for k, r in enumerate(rocks) if k not in gone_rocks]
-        for rb in res.removed:
-            if rb.name.startswith("rock"):
-                continue
-            k = int(rb.name[1:])
-            removed.append({"cls": spawns[k].cls, "reason": rb.reason, "arrangement": spawns[k].arrangement})
-            log.warning("%s: removed %s (%s) during settling: %s", scene_id, rb.name, spawns[k].cls, rb.reason)
-        kept = [(int(n[1:]), res.pos[i], res.quat[i]) for i, n in enumerate(res.names) if n.startswith("o")]
-        phys = {"n_steps": res.n_steps, "sim_time_s": res.sim_time_s, "all_at_rest": res.all_at_rest}
         timings["physics_step_s"] = res.wall_time_s
         timings["physics_build_s"] = res.build_time_s
-    else:
-        kept, phys = [], {"n_steps": 0, "sim_time_s": 0.0, "all_at_rest": True}
     timings["physics_s"] = time.perf_counter() - t0
 
     # Burial: settled objects sink into the sediment (after the physics, which knows no sediment).
     burial_m = (sc.get("realism") or {}).get("burial_m", [0.0, 0.0])
-    buried = None
-    if kept and max(burial_m) > 0:
-        buried = burial_depths([spawns[k].group for k, _, _ in kept], burial_m,
-                               np.random.default_rng(derive_seed(seed, "burial")))
-        kept = [(k, np.asarray(t, dtype=np.float64) - [0.0, 0.0, d], q) for (k, t, q), d in zip(kept, buried)]
+    kept, buried = bury_objects(kept, spawns, burial_m, np.random.default_rng(derive_seed(seed, "burial")))
 
     # Survey and scan.
     t0 = time.perf_counter()
@@ -235,23 +216,7 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
     timings["scan_s"] = time.perf_counter() - t0
     label = np.where(snd.mesh >= 0, snd.mesh, -1).astype(np.int32)[inside]
 
-    # Annotations.
-    n_pts = np.bincount(label[label >= 0], minlength=len(kept))
-    objs = []
-    for idx, (k, t, q) in enumerate(kept):
-        sp = spawns[k]
-        obj = objects[sp.cls]
-        box = canonical_box(obj.mesh.vertices, t, q, obj.symmetry_order)
-        objs.append({
-            "id": idx, "cls": sp.cls,
-            "pose": {"t": [float(v) for v in t], "q": [float(v) for v in q]},
-            "box": [float(v) for v in box],
-            "n_points": int(n_pts[idx]),
-            "visible": bool(n_pts[idx] >= sc["min_points_visible"]),
-            "arrangement": sp.arrangement, "group": int(sp.group), "layer": int(sp.layer),
-        })
-        if buried is not None:
-            objs[-1]["burial_m"] = float(buried[idx])
+    objs = annotate_objects(kept, spawns, objects, label, sc["min_points_visible"], buried)
     meta = {
         "schema_version": SCHEMA_VERSION,
         "scene": scene_id,
@@ -272,6 +237,64 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
         "timings_s": timings,
     }
     return Scene(snd.xyz[inside], snd.ping[inside], snd.beam[inside], snd.line[inside], label, meta)
+
+
+def settle_spawns(scene_id: str, spawns, objects: dict[str, ObjectInfo], hf, physics: dict,
+                  rng: np.random.Generator, bounds_xy, static_bodies=()):
+    """Drop the planned objects (bodies ``o{k}`` for spawn k) with MuJoCo onto the heightfield and the
+    static bodies, with the `scenes.physics` settings. Returns (settle result or None when there is
+    nothing to drop, kept [(spawn index, t (3,), q (4,))], removed [{cls, reason, arrangement}],
+    physics summary). Objects the physics removes are logged, never dropped silently."""
+    if not spawns:
+        return None, [], [], {"n_steps": 0, "sim_time_s": 0.0, "all_at_rest": True}
+    bodies = [RigidBody(f"o{k}", objects[s.cls].convex_parts, objects[s.cls].mass_kg, s.t, s.q)
+              for k, s in enumerate(spawns)] + list(static_bodies)
+    res = settle(bodies, hf, rng=rng, max_time_s=physics["max_time_s"], dt_s=physics["dt_s"],
+                 lin_vel_tol=physics["lin_vel_tol"], ang_vel_tol=physics["ang_vel_tol"],
+                 settle_window_s=physics["settle_window_s"], bounds_xy=bounds_xy, friction=physics["friction"],
+                 sleep=physics["sleep"])
+    removed = []
+    for rb in res.removed:
+        if not rb.name.startswith("o"):
+            continue
+        k = int(rb.name[1:])
+        removed.append({"cls": spawns[k].cls, "reason": rb.reason, "arrangement": spawns[k].arrangement})
+        log.warning("%s: removed %s (%s) during settling: %s", scene_id, rb.name, spawns[k].cls, rb.reason)
+    kept = [(int(n[1:]), res.pos[i], res.quat[i]) for i, n in enumerate(res.names) if n.startswith("o")]
+    phys = {"n_steps": res.n_steps, "sim_time_s": res.sim_time_s, "all_at_rest": res.all_at_rest}
+    return res, kept, removed, phys
+
+
+def bury_objects(kept, spawns, burial_m, rng: np.random.Generator):
+    """Sink settled objects into the sediment by a depth drawn per group from burial_m [min, max] (m).
+    Returns (kept with lowered t, depths (K,) or None when burial is off)."""
+    if not kept or max(burial_m) <= 0:
+        return kept, None
+    buried = burial_depths([spawns[k].group for k, _, _ in kept], burial_m, rng)
+    return [(k, np.asarray(t, dtype=np.float64) - [0.0, 0.0, d], q) for (k, t, q), d in zip(kept, buried)], buried
+
+
+def annotate_objects(kept, spawns, objects: dict[str, ObjectInfo], label: np.ndarray, min_points_visible: int,
+                     buried=None) -> list[dict]:
+    """The scene JSON's object entries (DESIGN.md section 3): id, class, pose, canonical box, number of
+    soundings (from `label`, object index per sounding or -1), visibility, arrangement, burial depth."""
+    n_pts = np.bincount(label[label >= 0], minlength=len(kept))
+    objs = []
+    for idx, (k, t, q) in enumerate(kept):
+        sp = spawns[k]
+        obj = objects[sp.cls]
+        box = canonical_box(obj.mesh.vertices, t, q, obj.symmetry_order)
+        objs.append({
+            "id": idx, "cls": sp.cls,
+            "pose": {"t": [float(v) for v in t], "q": [float(v) for v in q]},
+            "box": [float(v) for v in box],
+            "n_points": int(n_pts[idx]),
+            "visible": bool(n_pts[idx] >= min_points_visible),
+            "arrangement": sp.arrangement, "group": int(sp.group), "layer": int(sp.layer),
+        })
+        if buried is not None:
+            objs[-1]["burial_m"] = float(buried[idx])
+    return objs
 
 
 def save_scene(scene: Scene, npz_path, json_path) -> None:
