@@ -7,7 +7,8 @@ import pytest
 import yaml
 
 from conftest import REPO
-from sonardet.config import ConfigError, derive_seed, load_config, validate_config
+from sonardet.config import ConfigError, load_config, validate_config
+from sonardet.seeds import derive_seed
 
 
 def test_default_config_is_valid_and_complete(default_config):

@@ -7,7 +7,8 @@ import open3d as o3d
 import pytest
 import trimesh
 
-from sonardet.config import ConfigError, config_hash, load_schema, validate_config
+from sonardet.config import ConfigError, load_schema, validate_config
+from sonardet.seeds import config_hash
 from sonardet.objects import build_object
 from sonardet.objects.catalog import ObjectInfo
 from sonardet.sim.mbes import RaycastTarget, SensorConfig, Trajectory, beam_angles, scan, straight_line

@@ -7,7 +7,7 @@ sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821
 
 import json
 
-from sonardet.config import derive_seed
+from sonardet.seeds import derive_seed
 from sonardet.eval.noise import characterize_noise, simulated_flat_patch, to_json
 from sonardet.io.atomic import atomic_write_text
 from sonardet.io.pointcloud import read_points

@@ -7,7 +7,7 @@ sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821
 
 import numpy as np
 
-from sonardet.config import derive_seed
+from sonardet.seeds import derive_seed
 from sonardet.objects import load_object
 from sonardet.sim.mbes import SensorConfig
 from sonardet.sim.templates import save_templates, scan_templates

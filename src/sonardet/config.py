@@ -8,13 +8,12 @@ message that names the key path, so a bad config stops the run before any job st
 from __future__ import annotations
 
 import copy
-import hashlib
-import json
 from importlib import resources
 from pathlib import Path
 
 import jsonschema
 import yaml
+
 
 
 class ConfigError(ValueError):
@@ -298,16 +297,3 @@ def load_config(path) -> dict:
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a mapping of keys to values")
     return validate_config(data, source=str(path))
-
-
-def config_hash(section) -> str:
-    """Short stable hash (hex, 12 chars) of a config section, for provenance in outputs."""
-    blob = json.dumps(section, sort_keys=True, separators=(",", ":")).encode()
-    return hashlib.sha256(blob).hexdigest()[:12]
-
-
-def derive_seed(base_seed: int, *keys) -> int:
-    """Seed for one stochastic step, derived from the config seed and the step's keys (e.g. stage
-    name and scene id). Stable across Python versions and processes (no use of hash())."""
-    blob = json.dumps([int(base_seed), *map(str, keys)]).encode()
-    return int.from_bytes(hashlib.blake2b(blob, digest_size=8).digest(), "little") >> 1

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..config import derive_seed
+from ..seeds import derive_seed
 
 
 def scene_ids(n_scenes: int) -> list[str]:

@@ -37,7 +37,7 @@ from scipy import ndimage
 from scipy.optimize import least_squares
 
 from .. import SCHEMA_VERSION
-from ..config import config_hash, derive_seed
+from ..seeds import config_hash, derive_seed
 from ..geometry import quat_to_matrix
 from ..objects import ObjectInfo
 from .layout import plan_layout

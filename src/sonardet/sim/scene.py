@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import SCHEMA_VERSION
-from ..config import config_hash, derive_seed
+from ..seeds import config_hash, derive_seed
 from ..geometry import quat_to_matrix
 from ..io.atomic import atomic_path, atomic_write_text
 from ..objects import ObjectInfo

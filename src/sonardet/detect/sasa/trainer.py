@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from ... import SCHEMA_VERSION
-from ...config import derive_seed
+from ...seeds import derive_seed
 from ...io.atomic import atomic_path, atomic_write_text
 from .config import (
     ARCHITECTURE_KEYS,
