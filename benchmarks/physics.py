@@ -49,11 +49,11 @@ def tetrapod_like_parts(height_m: float, sections: int = 24, root_ratio: float =
 
 def _catalog_classes():
     """(name, convex parts, mass kg, reach m, upright) of the four real classes at the default config."""
-    from sonardet.config import load_config
+    from sonardet.config import read_config
     from sonardet.objects.meshes import build_object
 
     here = os.path.dirname(os.path.abspath(__file__))
-    cfg = load_config(os.path.join(here, "..", "config", "config.yaml"))["objects"]
+    cfg = read_config(os.path.join(here, "..", "config", "config.yaml"))["objects"]
     out = []
     for cls in ("reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s"):
         m = build_object(cls, cfg)

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sonardet.config import load_config
+from sonardet.config import read_config
 from sonardet.objects import build_object
-from sonardet.objects.catalog import ObjectInfo
+from sonardet.objects import object_info
 from sonardet.sim.dataset import scene_ids
 from sonardet.sim.scene import simulate_scene
 
@@ -29,9 +29,7 @@ def objects_of(cfg):
     out = {}
     for c in cfg["classes"]:
         m = build_object(c, cfg["objects"])
-        vol = float(m.mesh.volume)
-        out[c] = ObjectInfo(c, m.mesh, m.convex_parts, vol * cfg["objects"]["density_kg_m3"], vol,
-                            m.symmetry_order, np.asarray(m.mesh.extents))
+        out[c] = object_info(m, cfg["objects"]["density_kg_m3"])
     return out
 
 
@@ -41,7 +39,7 @@ def main():
     ap.add_argument("--scenes", type=int, default=5)
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
-    cfg = load_config(args.config)
+    cfg = read_config(args.config)
     objs = objects_of(cfg)
     rows = []
     for sid in scene_ids(args.scenes):

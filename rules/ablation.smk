@@ -10,51 +10,46 @@ rule ablation_point:
         "results/logs/ablation/{point}.log",
     benchmark:
         "results/benchmarks/ablation/{point}.tsv"
+    priority: PRIORITY["ablation"]
     conda:
         "../environment.yml"
-    threads: lambda w: config["sasa"]["threads"] if ABLATION[w.point]["method"] == "sasa" else 1
+    threads: lambda w: ABLATION_METHOD[w.point].threads
+    resources:
+        mem_mb=MEM_MB["ablation"],
     params:
         point=lambda w: ABLATION[w.point],
-        base=lambda w: ablation_base_params(ABLATION[w.point]),
+        method=lambda w: ABLATION_METHOD[w.point].to_dict(),
         evaluation=config["evaluation"],
         classes=CLASSES,
-        seed=config["seed"],
     script:
         "../workflow_scripts/ablation_point.py"
 
 
 rule ablation_reference:
     input:
-        detections=expand(
-            "results/detections/{method}/synthetic/{scene}.json",
-            method=METHODS,
-            scene=ABLATION_SCENES,
-        ),
-        stats=expand(
-            "results/stats/{method}/synthetic/{scene}.json",
-            method=[m for m in METHODS if m.startswith("model_based_")],
-            scene=ABLATION_SCENES,
-        ),
-        inference=expand(
-            "results/stats/{method}/synthetic/inference.json",
-            method=[m for m in METHODS if m.startswith("sasa_")],
-        ),
-        training=expand(
-            "results/models/{method}/train.json",
-            method=[m for m in METHODS if m.startswith("sasa_")],
-        ),
+        files=[
+            f
+            for e in ablation_reference_methods()
+            for f in e["detections"]
+            + e["timing"]
+            + ([e["train"]] if e["train"] else [])
+        ],
         labels=expand("results/scenes/{scene}.json", scene=ABLATION_SCENES),
         meta=object_files("json"),
     output:
         "results/ablation/reference.json",
     log:
         "results/logs/ablation/reference.log",
+    benchmark:
+        "results/benchmarks/ablation/reference.tsv"
+    priority: PRIORITY["ablation"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["evaluate"],
     params:
-        methods=METHODS,
-        scenes=ABLATION_SCENES,
+        methods=ablation_reference_methods(),
         evaluation=config["evaluation"],
         classes=CLASSES,
     script:
@@ -65,31 +60,26 @@ rule ablation_reference:
 # time, against the same scenes without (synthetic) and with every effect (realism).
 rule realism_ablation:
     input:
-        detections=expand(
-            "results/detections/{method}/{dataset}/{scene}.json",
-            method=config["realism_ablation"]["methods"],
-            dataset=REALISM_ABLATION_DATASETS,
-            scene=REALISM_ABLATION_SCENES,
-        ),
-        labels=[
-            dataset_scene_file(d, s, "json")
-            for d in REALISM_ABLATION_DATASETS
-            for s in REALISM_ABLATION_SCENES
+        files=[
+            f
+            for e in realism_ablation_effects().values()
+            for f in e["scenes"] + [p for ps in e["detections"].values() for p in ps]
         ],
         meta=object_files("json"),
     output:
         "results/realism_ablation/summary.json",
     log:
         "results/logs/realism_ablation.log",
+    benchmark:
+        "results/benchmarks/realism_ablation.tsv"
+    priority: PRIORITY["evaluate"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["evaluate"],
     params:
-        methods=config["realism_ablation"]["methods"],
-        effects=REALISM_EFFECTS,
-        effect_keys=REALISM_EFFECT_KEYS,
-        scenes=REALISM_ABLATION_SCENES,
-        dirs={d: DATASET_DIRS[d] for d in REALISM_ABLATION_DATASETS},
+        effects=realism_ablation_effects(),
         evaluation=config["evaluation"],
         classes=CLASSES,
     script:

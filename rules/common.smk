@@ -1,13 +1,16 @@
-# Helper functions shared by the rules: config validation, class lists, output paths.
+# The workflow's tables and path helpers: config validation, the datasets, the methods (from the
+# library's registry), the results/ layout. The only place that knows where results live.
 import os
+import re
 import sys
 
 from snakemake.exceptions import WorkflowError
 
 # The library lives in src/; importable here even when the package is not installed. Each job's
-# script inserts the same path itself (e.g. in a rule's conda env).
+# script does the same through workflow_scripts/common.py.
 sys.path.insert(0, os.path.join(workflow.basedir, "src"))
 
+from sonardet import methods as method_registry
 from sonardet.config import (
     ConfigError,
     realism_effect_config,
@@ -15,6 +18,8 @@ from sonardet.config import (
     realism_test_config,
     validate_config,
 )
+from sonardet.experiments.ablation import point_method
+from sonardet.detect.survey import enabled_surveys, tile_ids
 from sonardet.sim.dataset import make_splits, scene_ids, split_names
 
 try:
@@ -55,17 +60,25 @@ if config["hybrid_test"]["enabled"] and not HYBRID:
 if HYBRID:
     DATASETS["hybrid"] = scene_ids(config["hybrid_test"]["n_scenes"])
     DATASET_DIRS["hybrid"] = "results/hybrid/scenes"
-FRACTIONS = [int(f) for f in config["split"]["fractions"]]
-#: Methods: model_based_{variant} and sasa_{fraction}.
-METHODS = [f"model_based_{v}" for v in config["model_based"]["variants"]] + (
-    [f"sasa_{f}" for f in FRACTIONS] if config["sasa"]["enabled"] else []
-)
-#: SASA trained with domain randomisation: sasa_dr_{fraction} (compared with sasa_{fraction}).
-DR_METHODS = (
-    [f"sasa_dr_{f}" for f in config["domain_randomisation"]["fractions"]]
-    if config["sasa"]["enabled"] and config["domain_randomisation"]["enabled"]
-    else []
-)
+
+#: Methods, from the library's registry: name -> Method (family, settings, runner, training).
+METHOD = {m.name: m for m in method_registry.configured(config)}
+#: The methods of the main tables, and the variants paired with them (e.g. SASA with domain
+#: randomisation beside plain SASA).
+METHODS = [m.name for m in method_registry.main_methods(config)]
+VARIANTS = {m.name: m.variant_of for m in method_registry.variants(config)}
+TRAINED = [n for n, m in METHOD.items() if m.trained]
+
+
+def _alternation(names):
+    """A wildcard regex matching exactly these names (never anything when empty)."""
+    return "|".join(re.escape(n) for n in names) or "(?!)"
+
+
+PER_SCENE_RE = _alternation(n for n, m in METHOD.items() if m.runner == "per_scene")
+PER_DATASET_RE = _alternation(n for n, m in METHOD.items() if m.runner == "per_dataset")
+TRAINED_RE = _alternation(TRAINED)
+
 #: One-at-a-time realism ablation: effect -> dataset name; its scenes are the first test scenes.
 REALISM_EFFECT_KEYS = realism_effects(config)
 REALISM_EFFECTS = {e: f"realism_{e}" for e in REALISM_EFFECT_KEYS}
@@ -77,25 +90,30 @@ for _effect, _dataset in REALISM_EFFECTS.items():
 REALISM_ABLATION_DATASETS = ["synthetic", "realism"] + list(REALISM_EFFECTS.values())
 #: Datasets evaluated on their own (the ablation datasets are evaluated together, in one job).
 EVAL_DATASETS = [d for d in DATASETS if d not in REALISM_EFFECTS.values()]
-#: Ablation grid points by name, and the test scenes they run on.
+#: Ablation grid points by name, the method each runs, and the test scenes they run on.
 ABLATION = (
     {p["name"]: p for p in config["ablation"]["points"]}
     if config["ablation"]["enabled"]
     else {}
 )
+ABLATION_METHOD = {name: point_method(p, config) for name, p in ABLATION.items()}
 ABLATION_SCENES = SPLIT["test"][: config["ablation"]["n_scenes"]]
+#: Scheduling per rule group, from the config (workflow.priorities, workflow.mem_mb).
+PRIORITY = config["workflow"]["priorities"]
+MEM_MB = config["workflow"]["mem_mb"]
 
 
 wildcard_constraints:
     cls="|".join(CLASSES),
     scene=r"s\d{4}",
     dataset="|".join(DATASETS),
-    variant="paper|ours",
-    fraction=r"\d+",
-    method=r"model_based_(paper|ours)|sasa_\d+|sasa_dr_\d+",
-    model=r"sasa_\d+|sasa_dr_\d+",
+    method=_alternation(METHOD),
     effect="|".join(REALISM_EFFECTS) or "none",
     point=r"[A-Za-z0-9_-]+",
+
+
+# ------------------------------------------------------------------------------------------------
+# The results/ layout.
 
 
 def object_files(ext):
@@ -115,12 +133,7 @@ def scene_files(ext):
 
 def dataset_scene_files(dataset, ext):
     """Scene files of an evaluation dataset."""
-    return expand(
-        "{dir}/{scene}.{ext}",
-        dir=DATASET_DIRS[dataset],
-        scene=DATASETS[dataset],
-        ext=ext,
-    )
+    return [dataset_scene_file(dataset, s, ext) for s in DATASETS[dataset]]
 
 
 def dataset_scene_file(dataset, scene, ext):
@@ -133,28 +146,68 @@ def split_scene_files(name, ext):
     return expand("results/scenes/{scene}.{ext}", scene=SPLIT[name], ext=ext)
 
 
+def model_file(method, name="model.pt"):
+    """A trained method's file: model.pt, loss.csv or train.json."""
+    return f"results/models/{method}/{name}"
+
+
+def detection_file(method, dataset, scene):
+    """Detections of a method on one scene of a dataset."""
+    return f"results/detections/{method}/{dataset}/{scene}.json"
+
+
+def detection_files(method, dataset, scenes=None):
+    """Detection files of a method on the scenes of a dataset (default: all of them)."""
+    return [detection_file(method, dataset, s) for s in (scenes or DATASETS[dataset])]
+
+
+def scene_stats_file(method, dataset, scene):
+    """Statistics of a per-scene method's job on one scene (seconds per stage, counts)."""
+    return f"results/stats/{method}/{dataset}/{scene}.json"
+
+
+def dataset_timing_file(method, dataset):
+    """Timing of a per-dataset method's job (seconds per scene, memory, device)."""
+    return f"results/stats/{method}/{dataset}/inference.json"
+
+
+def timing_files(method, dataset, scenes=None):
+    """Where a method's time per scene comes from: its per-scene stats files, or the timing file of
+    its per-dataset job."""
+    if METHOD[method].runner == "per_scene":
+        return [
+            scene_stats_file(method, dataset, s) for s in (scenes or DATASETS[dataset])
+        ]
+    return [dataset_timing_file(method, dataset)]
+
+
+def metrics_file(method, dataset, name="metrics.json"):
+    """Evaluation of a method on a dataset: metrics.json, per_class.csv or pr_curves.npz."""
+    return f"results/eval/{method}/{dataset}/{name}"
+
+
 def eval_files(methods=None):
-    """metrics.json of every method (default: METHODS and DR_METHODS) on every evaluation dataset."""
-    return expand(
-        "results/eval/{method}/{dataset}/metrics.json",
-        method=METHODS + DR_METHODS if methods is None else methods,
-        dataset=EVAL_DATASETS,
-    )
+    """metrics.json of every method (default: all configured) on every evaluation dataset."""
+    return [metrics_file(m, d) for m in (methods or METHOD) for d in EVAL_DATASETS]
 
 
-def detection_files(method, dataset):
-    """Detection files of a method on every scene of a dataset."""
-    return expand(
-        "results/detections/{method}/{dataset}/{scene}.json",
-        method=method,
-        dataset=dataset,
-        scene=DATASETS[dataset],
-    )
+def method_resources(method):
+    """Named inputs a method runs with: object models, template scans, its trained model."""
+    kinds = METHOD[method].resources if method in METHOD else ()
+    out = {}
+    if "objects" in kinds:
+        out["meshes"] = object_files("ply")
+        out["meta"] = object_files("json")
+    if "templates" in kinds:
+        out["templates"] = template_files()
+    if "model" in kinds:
+        out["model"] = model_file(method)
+    return out
 
 
 def ablation_point_inputs(wildcards):
-    """Scenes, objects and templates of a grid point; SASA points also need their training scenes."""
-    point = ABLATION[wildcards.point]
+    """Scenes, objects and templates of a grid point; a trained method also needs its training scenes."""
+    method = ABLATION_METHOD[wildcards.point]
     inputs = {
         "scenes": expand("results/scenes/{scene}.npz", scene=ABLATION_SCENES),
         "labels": expand("results/scenes/{scene}.json", scene=ABLATION_SCENES),
@@ -162,18 +215,10 @@ def ablation_point_inputs(wildcards):
         "meshes": object_files("ply"),
         "templates": template_files(),
     }
-    if point["method"] == "sasa":
-        inputs["train"] = split_scene_files(f"train_{point['fraction']}", "npz")
-        inputs["train_labels"] = split_scene_files(f"train_{point['fraction']}", "json")
+    if method.trained:
+        inputs["train"] = split_scene_files(f"train_{method.fraction}", "npz")
+        inputs["train_labels"] = split_scene_files(f"train_{method.fraction}", "json")
     return inputs
-
-
-def ablation_base_params(point):
-    """The configured hyper-parameters a grid point starts from (only its own method's, so that a
-    change of another method's settings does not rerun the point)."""
-    if point["method"] == "sasa":
-        return {k: config["sasa"][k] for k in ("preset", "params")}
-    return config["model_based"][point["method"][len("model_based_") :]]
 
 
 def ablation_files():
@@ -195,7 +240,7 @@ if config["noise"]["enabled"] and not NOISE:
     )
 
 
-#: Report tables (stem -> caption file) and figures (name -> caption file), written by rule report.
+#: Report tables and figures written by the report rule; captions in config/report/ (table_*.rst, figure_*.rst).
 REPORT_TABLES = (
     ["dataset", "comparison", "fractions", "timing"]
     + (["comparison_realism"] if "realism" in DATASETS else [])
@@ -203,11 +248,11 @@ REPORT_TABLES = (
     + (["noise"] if NOISE else [])
     + (["comparison_hybrid"] if "hybrid" in DATASETS else [])
     + (["realism_ablation"] if REALISM_EFFECTS else [])
-    + (["domain_randomisation"] if DR_METHODS else [])
+    + (["domain_randomisation"] if VARIANTS else [])
 )
 REPORT_FIGURES = (
     ["topview", "poses3d", "pr_curves", "dataset_example"]
-    + (["loss_curves"] if config["sasa"]["enabled"] else [])
+    + (["loss_curves"] if [m for m in TRAINED if m in METHODS] else [])
     + (["pareto"] if ABLATION else [])
     + (["hybrid_example"] if "hybrid" in DATASETS else [])
 )
@@ -240,3 +285,194 @@ def final_outputs():
         + (["results/realism_ablation/summary.json"] if REALISM_EFFECTS else [])
         + report_files()
     )
+
+
+# ------------------------------------------------------------------------------------------------
+# Rule inputs and parameters.
+
+
+def detect_scene_inputs(wildcards):
+    """The scene's soundings and the method's resources (objects, templates, model)."""
+    return {
+        "npz": dataset_scene_file(wildcards.dataset, wildcards.scene, "npz"),
+        **method_resources(wildcards.method),
+    }
+
+
+def train_inputs(wildcards):
+    """The training fraction's scenes and the validation scenes."""
+    fraction = METHOD[wildcards.method].fraction
+    return {
+        "train": split_scene_files(f"train_{fraction}", "npz"),
+        "train_labels": split_scene_files(f"train_{fraction}", "json"),
+        "val": split_scene_files("val", "npz"),
+        "val_labels": split_scene_files("val", "json"),
+    }
+
+
+def ablation_reference_methods():
+    """Per main method: its Method, detections on the ablation scenes, where its time per scene comes
+    from, and (trained methods) its training summary."""
+    return [
+        {
+            "method": METHOD[m].to_dict(),
+            "detections": detection_files(m, "synthetic", ABLATION_SCENES),
+            "timing": timing_files(m, "synthetic", ABLATION_SCENES),
+            "train": model_file(m, "train.json") if METHOD[m].trained else None,
+        }
+        for m in METHODS
+    ]
+
+
+def realism_ablation_effects():
+    """effect -> its dataset, scene JSONs, the methods' detections and the effect's config keys
+    ('none': the plain scenes, 'all': the realism test set); empty without the ablation.
+    """
+    if not REALISM_EFFECTS:
+        return {}
+    sets = {"none": "synthetic", "all": "realism", **REALISM_EFFECTS}
+    methods = config["realism_ablation"]["methods"]
+    return {
+        effect: {
+            "dataset": d,
+            "scenes": [
+                dataset_scene_file(d, s, "json") for s in REALISM_ABLATION_SCENES
+            ],
+            "detections": {
+                m: detection_files(m, d, REALISM_ABLATION_SCENES) for m in methods
+            },
+            "keys": REALISM_EFFECT_KEYS.get(effect, []),
+        }
+        for effect, d in sets.items()
+    }
+
+
+def _caption(name):
+    """The caption text of a report table (config/report/table_{name}.rst), if there is one."""
+    path = os.path.join(workflow.basedir, "config", "report", f"table_{name}.rst")
+    return open(path).read().strip() if os.path.exists(path) else None
+
+
+def report_manifest():
+    """Every result file the report reads, keyed by what it is (sonardet.report.build)."""
+    main = [METHOD[m] for m in METHODS]
+    figure_sets = ["synthetic"] + (["hybrid"] if "hybrid" in DATASETS else [])
+    return {
+        "classes": CLASSES,
+        "methods": [
+            {
+                "name": m.name,
+                "family": m.family,
+                "trained": m.trained,
+                "fraction": m.fraction,
+                "runner": m.runner,
+                "training": method_registry.family(m.family).training_label(m),
+            }
+            for m in main
+        ],
+        "variants": VARIANTS,
+        "datasets": EVAL_DATASETS,
+        "metrics": {m: {d: metrics_file(m, d) for d in EVAL_DATASETS} for m in METHOD},
+        "pr": {m: metrics_file(m, "synthetic", "pr_curves.npz") for m in METHODS},
+        "detections": {
+            d: {m: {s: detection_file(m, d, s) for s in DATASETS[d]} for m in METHODS}
+            for d in figure_sets
+        },
+        "timing": {m: timing_files(m, "synthetic") for m in METHODS},
+        "train": {
+            m.name: {
+                "summary": model_file(m.name, "train.json"),
+                "loss": model_file(m.name, "loss.csv"),
+            }
+            for m in main
+            if m.trained
+        },
+        "dataset_table": "results/tables/dataset_stats.csv",
+        "scenes": {s: f"results/scenes/{s}.json" for s in SCENES},
+        "scene_dir": "results/scenes",
+        "scene_benchmarks": expand(
+            "results/benchmarks/simulate_scene/{scene}.tsv", scene=SCENES
+        ),
+        "test_scenes": DATASETS["synthetic"],
+        "train_scenes": SPLIT["train"],
+        "objects": {c: f"results/objects/{c}.json" for c in CLASSES},
+        "meshes": object_files("ply"),
+        "ablation": (
+            {
+                "points": expand(
+                    "results/ablation/points/{point}.json", point=ABLATION
+                ),
+                "reference": "results/ablation/reference.json",
+            }
+            if ABLATION
+            else None
+        ),
+        "noise": "results/noise/noise.json" if NOISE else None,
+        "realism_ablation": (
+            "results/realism_ablation/summary.json" if REALISM_EFFECTS else None
+        ),
+        "hybrid": (
+            {
+                s: [dataset_scene_file("hybrid", s, e) for e in ("npz", "json")]
+                for s in DATASETS["hybrid"]
+            }
+            if "hybrid" in DATASETS
+            else None
+        ),
+        "tables": REPORT_TABLES,
+        "figures": REPORT_FIGURES,
+        "figure_methods": config["report"]["figure_methods"],
+        "captions": {t: _caption(t) for t in REPORT_TABLES},
+        "config_info": {
+            "seed": config["seed"],
+            "scenes": config["scenes"]["n_scenes"],
+            "sasa preset": config["sasa"]["preset"],
+        },
+    }
+
+
+def _manifest_files(value):
+    """Every file in a manifest value (strings under results/ with a suffix; not the folders)."""
+    if isinstance(value, str):
+        return (
+            [value]
+            if value.startswith("results/") and os.path.splitext(value)[1]
+            else []
+        )
+    if isinstance(value, dict):
+        return [f for v in value.values() for f in _manifest_files(v)]
+    if isinstance(value, (list, tuple)):
+        return [f for v in value for f in _manifest_files(v)]
+    return []
+
+
+# Surveys (rules/survey.smk).
+#: Surveys to run: name -> settings (schema defaults filled in); missing files are reported here.
+SURVEYS, _survey_messages = enabled_surveys(config["surveys"])
+for _message in _survey_messages:
+    print(_message, file=sys.stderr)
+#: The method each survey runs (any registered method; its settings from its config section).
+SURVEY_METHOD = {
+    s: method_registry.get(v["method"], config) for s, v in SURVEYS.items()
+}
+
+
+#: Final outputs of every survey.
+SURVEY_OUTPUTS = expand(
+    "results/surveys/{survey}/detections.{ext}",
+    survey=SURVEYS,
+    ext=["json", "csv", "geojson"],
+)
+
+
+def survey_tile_inputs(wildcards):
+    """One tile's points and the survey method's resources."""
+    method = SURVEY_METHOD[wildcards.survey]
+    out = {"npz": f"results/surveys/{wildcards.survey}/tiles/{wildcards.tile}.npz"}
+    if "objects" in method.resources:
+        out.update(meshes=object_files("ply"), meta=object_files("json"))
+    if "templates" in method.resources:
+        out["templates"] = template_files()
+    if "model" in method.resources:
+        out["model"] = model_file(method.name)
+    return out

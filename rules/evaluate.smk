@@ -14,9 +14,12 @@ rule evaluate:
         "results/logs/evaluate/{method}/{dataset}.log",
     benchmark:
         "results/benchmarks/evaluate/{method}/{dataset}.tsv"
+    priority: PRIORITY["evaluate"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["evaluate"],
     params:
         evaluation=config["evaluation"],
         classes=CLASSES,

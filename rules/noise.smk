@@ -13,9 +13,14 @@ rule noise_characterization:
         ),
     log:
         "results/logs/noise_characterization.log",
+    benchmark:
+        "results/benchmarks/noise_characterization.tsv"
+    priority: PRIORITY["evaluate"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["evaluate"],
     params:
         noise=config["noise"],
         sensor=config["sensor"],

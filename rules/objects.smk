@@ -9,9 +9,12 @@ rule object_mesh:
         "results/logs/object_mesh/{cls}.log",
     benchmark:
         "results/benchmarks/object_mesh/{cls}.tsv"
+    priority: PRIORITY["objects"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["objects"],
     params:
         objects=config["objects"],
     script:
@@ -28,9 +31,12 @@ rule template_scan:
         "results/logs/template_scan/{cls}.log",
     benchmark:
         "results/benchmarks/template_scan/{cls}.tsv"
+    priority: PRIORITY["objects"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["objects"],
     params:
         sensor=config["sensor"],
         templates=config["templates"],

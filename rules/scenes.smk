@@ -12,9 +12,12 @@ rule simulate_scene:
         "results/logs/simulate_scene/{scene}.log",
     benchmark:
         "results/benchmarks/simulate_scene/{scene}.tsv"
+    priority: PRIORITY["simulate"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["simulate"],
     params:
         config={
             k: config[k] for k in ("seed", "classes", "objects", "sensor", "scenes")
@@ -34,9 +37,12 @@ rule simulate_scene_realism:
         "results/logs/simulate_scene_realism/{scene}.log",
     benchmark:
         "results/benchmarks/simulate_scene_realism/{scene}.tsv"
+    priority: PRIORITY["simulate"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["simulate"],
     params:
         config={
             k: v
@@ -58,9 +64,12 @@ rule simulate_scene_realism_effect:
         "results/logs/simulate_scene_realism_effect/{effect}/{scene}.log",
     benchmark:
         "results/benchmarks/simulate_scene_realism_effect/{effect}/{scene}.tsv"
+    priority: PRIORITY["simulate"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["simulate"],
     params:
         config=lambda w: {
             k: v
@@ -83,9 +92,12 @@ rule simulate_scene_hybrid:
         "results/logs/simulate_scene_hybrid/{scene}.log",
     benchmark:
         "results/benchmarks/simulate_scene_hybrid/{scene}.tsv"
+    priority: PRIORITY["simulate"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["simulate"],
     params:
         config={
             k: config[k]
@@ -102,9 +114,12 @@ rule split:
         "results/logs/split.log",
     benchmark:
         "results/benchmarks/split.tsv"
+    priority: PRIORITY["simulate"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["simulate"],
     params:
         split=config["split"],
         n_scenes=config["scenes"]["n_scenes"],
@@ -123,9 +138,12 @@ rule dataset_stats:
         "results/logs/dataset_stats.log",
     benchmark:
         "results/benchmarks/dataset_stats.tsv"
+    priority: PRIORITY["evaluate"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["evaluate"],
     params:
         classes=CLASSES,
     script:

@@ -1,4 +1,4 @@
-# Model-based detection on survey files (config `surveys`), one job per tile, so a large survey scales
+# Detection on survey files (config `surveys`), one job per tile, so a large survey scales
 # out on a cluster and a job's memory is bounded by its tile:
 #   checkpoint survey_tiles   survey file -> tiles/{tile}.npz (padded tile points) + tile_index.json
 #   detect_survey_tile        one tile's points -> its detections (survey coordinates)
@@ -6,22 +6,6 @@
 #                             -> detections.{json,csv,geojson} in the survey's coordinates/CRS
 # The tiles to detect are known only once the survey is read: survey_detections asks the checkpoint's
 # tile index for them. Library: sonardet.detect.survey, sonardet.detect.tiling.
-import sys
-
-from sonardet.detect.survey import enabled_surveys, tile_ids
-
-#: Surveys to run: name -> settings (schema defaults filled in); missing files are reported here.
-SURVEYS, _survey_messages = enabled_surveys(config["surveys"])
-for _message in _survey_messages:
-    print(_message, file=sys.stderr)
-#: Final outputs of every survey.
-SURVEY_OUTPUTS = expand(
-    "results/surveys/{survey}/detections.{ext}",
-    survey=SURVEYS,
-    ext=["json", "csv", "geojson"],
-)
-
-
 wildcard_constraints:
     survey="|".join(SURVEYS) or "(?!)",
     tile=r"t[0-9]+_[0-9]+",
@@ -40,9 +24,12 @@ checkpoint survey_tiles:
         "results/logs/survey_tiles/{survey}.log",
     benchmark:
         "results/benchmarks/survey_tiles/{survey}.tsv"
+    priority: PRIORITY["survey"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["survey"],
     params:
         split=lambda w: {
             k: SURVEYS[w.survey][k]
@@ -54,10 +41,7 @@ checkpoint survey_tiles:
 
 rule detect_survey_tile:
     input:
-        npz="results/surveys/{survey}/tiles/{tile}.npz",
-        meshes=object_files("ply"),
-        meta=object_files("json"),
-        templates=template_files(),
+        unpack(survey_tile_inputs),
     output:
         detections="results/surveys/{survey}/tile_detections/{tile}.json",
         stats="results/surveys/{survey}/tile_stats/{tile}.json",
@@ -65,12 +49,14 @@ rule detect_survey_tile:
         "results/logs/detect_survey_tile/{survey}/{tile}.log",
     benchmark:
         "results/benchmarks/detect_survey_tile/{survey}/{tile}.tsv"
+    priority: PRIORITY["survey"]
     conda:
         "../environment.yml"
-    threads: 1
+    threads: lambda w: SURVEY_METHOD[w.survey].threads
+    resources:
+        mem_mb=MEM_MB["survey"],
     params:
-        variant=lambda w: SURVEYS[w.survey]["method"],
-        detector=lambda w: config["model_based"][SURVEYS[w.survey]["method"]],
+        method=lambda w: SURVEY_METHOD[w.survey].to_dict(),
         classes=CLASSES,
     script:
         "../workflow_scripts/detect_survey_tile.py"
@@ -98,11 +84,14 @@ rule survey_detections:
         "results/logs/survey_detections/{survey}.log",
     benchmark:
         "results/benchmarks/survey_detections/{survey}.tsv"
+    priority: PRIORITY["survey"]
     conda:
         "../environment.yml"
     threads: 1
+    resources:
+        mem_mb=MEM_MB["survey"],
     params:
-        method=lambda w: f"model_based_{SURVEYS[w.survey]['method']}",
+        method=lambda w: SURVEY_METHOD[w.survey].name,
         source=lambda w: SURVEYS[w.survey]["path"],
         classes=CLASSES,
     script:

@@ -34,16 +34,16 @@ needs_real = pytest.mark.skipif(REAL_DIR is None, reason="real survey data not a
 @pytest.fixture(scope="session")
 def default_config() -> dict:
     """The default config with every schema default filled in."""
-    from sonardet.config import load_config
+    from sonardet.config import read_config
 
-    return load_config(REPO / "config" / "config.yaml")
+    return read_config(REPO / "config" / "config.yaml")
 
 
 @pytest.fixture(scope="session")
 def smoke_config() -> dict:
-    from sonardet.config import load_config
+    from sonardet.config import read_config
 
-    return load_config(REPO / "tests" / "config" / "smoke.yaml")
+    return read_config(REPO / "tests" / "config" / "smoke.yaml")
 
 
 @pytest.fixture(scope="session")
@@ -66,11 +66,14 @@ def one_torch_thread():
 
 
 def copy_workflow(work: Path) -> Path:
-    """Copy what a Snakemake run needs (Snakefile, rules, scripts, config, profiles, library) into `work`."""
-    for name in ("Snakefile", "rules", "workflow_scripts", "config", "profiles", "src", "environment.yml"):
+    """Copy what a Snakemake run needs (Snakefile, rules, scripts, config, profiles, library, the test
+    plugins) into `work`."""
+    for name in ("Snakefile", "rules", "workflow_scripts", "config", "profiles", "src", "environment.yml",
+                 "tests/plugins"):
         src = REPO / name
         if src.is_dir():
-            shutil.copytree(src, work / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"))
+            shutil.copytree(src, work / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"),
+                            dirs_exist_ok=True)
         else:
             shutil.copy(src, work / name)
     return work

@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from conftest import REPO
-from sonardet.config import ConfigError, load_config, validate_config
+from sonardet.config import ConfigError, read_config, validate_config
 from sonardet.seeds import derive_seed
 
 
@@ -67,7 +67,7 @@ def test_load_config_rejects_non_mapping(tmp_path):
     p = tmp_path / "c.yaml"
     p.write_text("- just\n- a list\n")
     with pytest.raises(ConfigError, match="c.yaml"):
-        load_config(p)
+        read_config(p)
 
 
 def test_derived_seeds_are_stable_and_distinct():

@@ -15,7 +15,7 @@ from sonardet.detect.model_based import DEFAULTS, PAPER, detect, resolve_params
 from sonardet.detect.model_based.proposals import sliding_windows, window_counts
 from sonardet.detect.model_based.registration import icp_point_to_point, icp_scene_to_model, SurfaceTarget
 from sonardet.geometry import quat_from_yaw, quat_to_matrix
-from sonardet.objects import ObjectInfo, build_object, canonical_box
+from sonardet.objects import build_object, canonical_box, object_info
 from sonardet.sim.mbes import RaycastTarget, SensorConfig, scan, straight_line
 from sonardet.sim.templates import scan_templates
 
@@ -35,10 +35,7 @@ def objects(cfg):
     out = {}
     for cls in CLASSES:
         m = build_object(cls, cfg["objects"])
-        out[cls] = ObjectInfo(cls=cls, mesh=m.mesh, convex_parts=m.convex_parts,
-                              mass_kg=float(m.mesh.volume) * cfg["objects"]["density_kg_m3"],
-                              volume_m3=float(m.mesh.volume), symmetry_order=m.symmetry_order,
-                              extents_m=np.asarray(m.mesh.extents))
+        out[cls] = object_info(m, cfg["objects"]["density_kg_m3"])
     return out
 
 

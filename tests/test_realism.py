@@ -7,10 +7,10 @@ import open3d as o3d
 import pytest
 import trimesh
 
-from sonardet.config import ConfigError, load_schema, validate_config
+from sonardet.config import ConfigError, read_schema, validate_config
 from sonardet.seeds import config_hash
 from sonardet.objects import build_object
-from sonardet.objects.catalog import ObjectInfo
+from sonardet.objects import object_info
 from sonardet.sim.mbes import RaycastTarget, SensorConfig, Trajectory, beam_angles, scan, straight_line
 from sonardet.sim.realism import RealismConfig, burial_depths, subray_bundle
 from sonardet.sim.scene import simulate_scene
@@ -291,7 +291,7 @@ def test_deterministic_for_a_seed():
 
 
 def test_config_keys_documented_validated_and_passed_through():
-    schema = load_schema()["properties"]["sensor"]["properties"]["realism"]
+    schema = read_schema()["properties"]["sensor"]["properties"]["realism"]
     assert "default" not in schema  # leaving the section out keeps the config (and its hash) as it was
     for f in fields(RealismConfig):
         prop = schema["properties"][f.name]
@@ -337,8 +337,7 @@ def tiny_scenes():
     cfg = validate_config(TINY)
     for c in cfg["classes"]:
         m = build_object(c, cfg["objects"])
-        objects[c] = ObjectInfo(c, m.mesh, m.convex_parts, m.mesh.volume * 2400, m.mesh.volume, m.symmetry_order,
-                                np.asarray(m.mesh.extents))
+        objects[c] = object_info(m, 2400.0)
     return {
         "plain": make(),
         "off": make({"realism": {}}, {"realism": {"burial_m": [0, 0]}}),

@@ -184,7 +184,8 @@ def _objects():
     for cls, m in meshes.items():
         m.apply_translation([0.0, 0.0, -m.bounds[0, 2]])
         out[cls] = ObjectInfo(cls=cls, mesh=m, convex_parts=[], mass_kg=1.0, volume_m3=1.0,
-                              symmetry_order=0, extents_m=np.asarray(m.extents))
+                              symmetry_order=0, extents_m=np.asarray(m.extents), up_axes=np.array([[0.0, 0.0, 1.0]]),
+                              tumble={"mode": "stable_poses"})
     return out
 
 
@@ -217,9 +218,20 @@ def test_comparison_table_matches_metrics_and_has_labelled_study_rows(run):
     assert "SASA (study)" not in comparison_table(run["metrics"], CLASSES, study=False)["method"].tolist()
 
 
+def _fraction_rows(run, summaries, annotations=None):
+    """fraction_table's method rows: the SASA summaries given, then model_based_paper (no training)."""
+    rows = [{"name": f"sasa_{f}", "family": "sasa", "trained": True, "fraction": f,
+             "training": f"SASA, {f} % of the training split", "summary": s,
+             **({"annotations": annotations[f]} if annotations and f in annotations else {})}
+            for f, s in summaries.items()]
+    return rows + [{"name": "model_based_paper", "family": "model_based", "trained": False, "fraction": None,
+                    "training": "no training"}]
+
+
 def test_fraction_table_rows_and_counts(run):
     summaries = {f: run["root"] / "models" / f"sasa_{f}" / "train.json" for f in (100, 50)}
-    df = fraction_table(summaries, run["metrics"], scenes_dir=run["root"] / "scenes").set_index("method")
+    df = fraction_table(_fraction_rows(run, summaries), run["metrics"],
+                        scenes_dir=run["root"] / "scenes").set_index("method")
     assert list(df.index) == ["sasa_50", "sasa_100", "model_based_paper"]  # fractions ascending, then no training
     assert df.loc["sasa_50", "training scenes"] == 1 and df.loc["sasa_100", "training scenes"] == 2
     assert df.loc["sasa_50", "training annotations"] == 4 and df.loc["sasa_100", "training annotations"] == 8
@@ -231,15 +243,15 @@ def test_fraction_table_rows_and_counts(run):
     assert df.loc["sasa_100", "mAP@0.5m (study)"] == 0.98 and df.loc["sasa_50", "mAP@0.5m (study)"] == 0.97
     assert df.loc["model_based_paper", "mAP@0.5m (study)"] == STUDY["model_based_mAP"]
     # Counts given directly take precedence over counting scene files.
-    df2 = fraction_table({"sasa_25": {"n_train_scenes": 20}}, run["metrics"], train_annotations={25: 1100})
+    df2 = fraction_table(_fraction_rows(run, {25: {"n_train_scenes": 20}}, {25: 1100}), run["metrics"])
     assert df2.iloc[0]["training annotations"] == 1100 and df2.iloc[0]["mAP@0.5m (study)"] == 0.96
 
 
 def test_timing_table_stages_and_memory(run):
     df = timing_table(
-        model_based_stats={"model_based_paper": run["stats"]},
-        sasa_inference={"sasa_100": run["inference"]},
-        sasa_train={100: run["root"] / "models" / "sasa_100" / "train.json"},
+        per_scene_stats={"model_based_paper": run["stats"]},
+        per_dataset_timing={"sasa_100": run["inference"]},
+        train_summaries={"sasa_100": run["root"] / "models" / "sasa_100" / "train.json"},
         simulation_benchmarks=run["sim_bench"],
         scene_jsons=[run["scenes"][s][0] for s in run["scenes"]],
         benchmarks={"model_based_paper": run["sim_bench"]},
@@ -259,7 +271,7 @@ def test_timing_table_stages_and_memory(run):
     assert sim.loc["scene (benchmark)", "peak memory (MB)"] == pytest.approx(400.0)
     assert sim.loc["physics", "mean"] == pytest.approx(2.0)
     # Already-loaded dicts work as well as paths.
-    d = timing_table(model_based_stats={"m": [json.loads(p.read_text()) for p in run["stats"]]})
+    d = timing_table(per_scene_stats={"m": [json.loads(p.read_text()) for p in run["stats"]]})
     assert d.set_index("stage").loc["total", "mean"] == pytest.approx(3.4)
     assert len(timing_table()) == 0
 

@@ -9,7 +9,7 @@ import pytest
 from sonardet.config import ConfigError, validate_config
 from sonardet.geometry import points_in_box, quat_to_matrix
 from sonardet.objects import build_object
-from sonardet.objects.catalog import ObjectInfo
+from sonardet.objects import object_info
 from sonardet.sim.dataset import dataset_stats, make_splits, scene_ids
 from sonardet.sim.mbes import SensorConfig, beam_angles
 from sonardet.sim.scene import load_scene_points, save_scene, simulate_scene
@@ -30,8 +30,7 @@ def _objects(cfg):
     out = {}
     for c in cfg["classes"]:
         m = build_object(c, cfg["objects"])
-        out[c] = ObjectInfo(c, m.mesh, m.convex_parts, m.mesh.volume * 2400, m.mesh.volume, m.symmetry_order,
-                            np.asarray(m.mesh.extents))
+        out[c] = object_info(m, 2400.0)
     return out
 
 

@@ -90,9 +90,9 @@ def test_survey_settings_take_the_schema_defaults():
 
 
 def test_default_config_runs_the_real_line():
-    from sonardet.config import load_config
+    from sonardet.config import read_config
 
-    cfg = load_config(REPO / "config" / "config.yaml")
+    cfg = read_config(REPO / "config" / "config.yaml")
     assert cfg["surveys"]["r2sonic_sfbay"] == {"path": "../shared/data/real/r2sonic_sfbay.xyz.gz",
                                                "crs": "EPSG:32610"}
 

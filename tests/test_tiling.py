@@ -236,14 +236,12 @@ EXTENT_M = 120.0
 @pytest.fixture(scope="module")
 def models(built_objects, default_config):
     """ObjectInfo and (reduced) template scans of the four classes."""
-    from sonardet.objects import ObjectInfo
+    from sonardet.objects import object_info
     from sonardet.sim.mbes import SensorConfig
     from sonardet.sim.templates import scan_templates
 
     dens = default_config["objects"]["density_kg_m3"]
-    objects = {c: ObjectInfo(cls=c, mesh=m.mesh, convex_parts=m.convex_parts, mass_kg=float(m.mesh.volume) * dens,
-                             volume_m3=float(m.mesh.volume), symmetry_order=m.symmetry_order,
-                             extents_m=np.asarray(m.mesh.extents)) for c, m in built_objects.items()}
+    objects = {c: object_info(m, dens) for c, m in built_objects.items()}
     sensor = SensorConfig.from_dict(default_config["sensor"])
     templates = {c: scan_templates(c, o.mesh.vertices, o.mesh.faces, o.symmetry_order, TEMPLATE_CFG, sensor,
                                    np.random.default_rng(1)) for c, o in objects.items()}

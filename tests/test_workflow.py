@@ -31,7 +31,8 @@ def smoke_run(tmp_path_factory):
     return work
 
 
-CLASSES = ["reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s"]
+#: The smoke config's classes: the four reef elements and a fifth one from a plugin (tests/plugins).
+CLASSES = ["reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s", "concrete_cube"]
 REAL_SOUNDINGS = REAL_FILE.parent / "r2sonic_sfbay_soundings.csv.gz" if REAL_FILE is not None else None
 #: Test sets evaluated on their own (the hybrid one needs the real line).
 EVAL_SETS = ("synthetic", "realism") + (("hybrid",) if REAL_FILE is not None else ())
@@ -54,7 +55,8 @@ def test_templates_well_formed(smoke_run):
         assert tv.scan_params["sensor"]["n_beams"] == 128  # from the smoke config
 
 
-METHODS = ["model_based_paper", "model_based_ours", "sasa_25", "sasa_50", "sasa_100"]
+#: The main methods, in the registry's order; `centroid` is a toy method from a plugin (tests/plugins).
+METHODS = ["model_based_paper", "model_based_ours", "sasa_25", "sasa_50", "sasa_100", "centroid"]
 
 
 def _test_scenes(work):
@@ -214,6 +216,41 @@ def test_report_tables_and_figures(smoke_run):
         assert 0.003 < noise["real"][0]["after"]["std_m"] < 0.015
 
 
+def test_toy_method_from_a_plugin(smoke_run):
+    """A method defined only in tests/plugins/centroid_method.py and registered from the config is run
+    per scene, evaluated on every test set and shown in the comparison and timing tables."""
+    sid = _test_scenes(smoke_run)[0]
+    for dataset in EVAL_SETS:
+        m = json.loads((smoke_run / f"results/eval/centroid/{dataset}/metrics.json").read_text())
+        assert 0.0 <= m["mAP_headline"] <= 1.0 + 1e-9
+    st = json.loads((smoke_run / f"results/stats/centroid/synthetic/{sid}.json").read_text())
+    assert st["scene"] == sid and st["seconds"]["total"] >= 0
+    tables = smoke_run / "results/report/tables"
+    assert "centroid" in pd.read_csv(tables / "comparison.csv")["method"].tolist()
+    timing = pd.read_csv(tables / "timing.csv")
+    assert timing[(timing["method"] == "centroid") & (timing["stage"] == "total")]["n"].tolist() == [1]
+    fractions = pd.read_csv(tables / "fractions.csv").set_index("method")
+    assert fractions.loc["centroid", "training"] == "no training"
+
+
+def test_fifth_class_from_a_plugin(smoke_run):
+    """A class defined only in tests/plugins/cube_class.py (one spec) and listed in `classes` is built,
+    scanned, placed in scenes, detected by every method and evaluated."""
+    meta = json.loads((smoke_run / "results/objects/concrete_cube.json").read_text())
+    assert meta["symmetry_order"] == 4 and abs(meta["volume_m3"] - 1.728) < 1e-6 and len(meta["up_axes"]) == 6
+    tv = load_templates(smoke_run / "results/templates/concrete_cube.npz")
+    assert len(tv.xyz) > 100
+    cubes = [o for p in (smoke_run / "results/scenes").glob("*.json")
+             for o in json.loads(p.read_text())["objects"] if o["cls"] == "concrete_cube"]
+    assert cubes and all(o["arrangement"] == "scatter" for o in cubes)
+    comparison = pd.read_csv(smoke_run / "results/report/tables/comparison.csv")
+    assert "AP@0.5m concrete_cube" in comparison.columns
+    m = json.loads((smoke_run / "results/eval/model_based_ours/synthetic/metrics.json").read_text())
+    assert "concrete_cube" in m["per_class"]
+    model = json.loads((smoke_run / "results/models/sasa_100/train.json").read_text())
+    assert model["params"]["symmetry_orders"]["concrete_cube"] == 4
+
+
 def test_html_report(smoke_run):
     proc = subprocess.run([sys.executable, "-m", "snakemake", "--configfile", "config_smoke.yaml",
                            "--report", "results/report.html"], cwd=smoke_run, capture_output=True, text=True)
@@ -234,7 +271,7 @@ def test_threshold_change_reruns_only_its_jobs(smoke_run):
     # Only the changed variant's detections (synthetic, realism, the two realism-ablation sets and the
     # hybrid set), their evaluations and what reads them.
     n_sets = len(EVAL_SETS)
-    assert jobs == {"detect_model_based": n_sets + 2, "evaluate": n_sets, "ablation_reference": 1,
+    assert jobs == {"detect_scene": n_sets + 2, "evaluate": n_sets, "ablation_reference": 1,
                     "realism_ablation": 1, "report": 1, "all": 1}, jobs
 
 

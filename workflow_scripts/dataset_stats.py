@@ -1,17 +1,13 @@
 """The dataset table: scenes, objects and per-class counts and shares for train and test."""
 
-import os
-import sys
-
-sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+from common import job
 
 from pathlib import Path
 
 from sonardet.io.atomic import atomic_path
 from sonardet.sim.dataset import dataset_stats, load_scene_meta, read_split
-from sonardet.workflow import rule_logging
 
-with rule_logging(snakemake, "dataset_stats") as log:  # noqa: F821
+with job(snakemake, "dataset_stats") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     metas = {Path(p).stem: load_scene_meta(p) for p in smk.input.scenes}
     splits = {Path(p).stem: read_split(p) for p in smk.input.splits}

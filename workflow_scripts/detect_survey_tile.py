@@ -1,32 +1,23 @@
-"""Run the model-based detector on one tile of a survey; write its detections (survey coordinates) and
-statistics."""
+"""Run a survey's method on one of its tiles; write its detections (survey coordinates) and statistics."""
 
-import os
-import sys
-
-sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+from common import job, job_method, job_resources
 
 import json
-from pathlib import Path
 
-from sonardet.detect.model_based import detect
+from sonardet import methods
 from sonardet.detect.survey import read_tile_points
 from sonardet.io.annotations import write_detections
 from sonardet.io.atomic import atomic_write_text
-from sonardet.objects import load_object
-from sonardet.sim.templates import load_templates
-from sonardet.workflow import rule_logging
 
-with rule_logging(snakemake, "detect_survey_tile") as log:  # noqa: F821
+with job(snakemake, "detect_survey_tile") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
-    survey, tile, variant = smk.wildcards.survey, smk.wildcards.tile, smk.params.variant
-    objects = {Path(p).stem: load_object(p) for p in smk.input.meta}
-    templates = {Path(p).stem: load_templates(p) for p in smk.input.templates}
+    survey, tile, method = smk.wildcards.survey, smk.wildcards.tile, job_method(smk)
     cloud = read_tile_points(smk.input.npz)
     log.info("%s %s: %d points (CRS %s)", survey, tile, len(cloud.xyz), cloud.crs)
-    dets, stats = detect(cloud.xyz, templates, objects, smk.params.detector, variant)
-    write_detections(smk.output.detections, tile, f"model_based_{variant}", dets, smk.params.classes)
+    detector = methods.family(method.family).load(method, job_resources(smk, method))
+    dets, stats = detector(cloud.xyz)
+    write_detections(smk.output.detections, tile, method.name, dets, smk.params.classes)
     atomic_write_text(smk.output.stats, json.dumps({"survey": survey, "tile": tile, **stats}, indent=1) + "\n")
-    log.info("%s %s (%s): %d detections (%d accepted), %d proposals (%d skipped), %d ICP runs, %.2f s", survey,
-             tile, variant, len(dets), sum(d["extras"]["accepted"] for d in dets), stats["windows"],
-             stats["windows_skipped"], stats["icp_runs"], stats["seconds"]["total"])
+    n_acc = sum(bool(d.get("extras", {}).get("accepted", True)) for d in dets)
+    log.info("%s %s (%s): %d detections (%d accepted), %.2f s", survey, tile, method.name, len(dets), n_acc,
+             stats["seconds"]["total"])

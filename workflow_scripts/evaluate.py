@@ -1,18 +1,14 @@
 """Evaluate one method's detections on one dataset (nuScenes centre-distance AP)."""
 
-import os
-import sys
-
-sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+from common import job
 
 import json
 
 import numpy as np
 
 from sonardet.eval import evaluate_files
-from sonardet.workflow import rule_logging
 
-with rule_logging(snakemake, "evaluate") as log:  # noqa: F821
+with job(snakemake, "evaluate") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     ev = smk.params.evaluation
     metas = [json.load(open(p)) for p in smk.input.objects]

@@ -1,9 +1,6 @@
 """Characterise the noise of a real survey on flat patches and of the simulated sensor on a flat seabed."""
 
-import os
-import sys
-
-sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+from common import job
 
 import json
 
@@ -12,9 +9,8 @@ from sonardet.eval.noise import characterize_noise, simulated_flat_patch, to_jso
 from sonardet.io.atomic import atomic_write_text
 from sonardet.io.pointcloud import read_points
 from sonardet.report import plot_noise
-from sonardet.workflow import rule_logging
 
-with rule_logging(snakemake, "noise_characterization") as log:  # noqa: F821
+with job(snakemake, "noise_characterization") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     cfg = smk.params.noise
     cloud = read_points(smk.input.survey)

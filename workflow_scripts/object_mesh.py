@@ -1,14 +1,10 @@
 """Build the mesh of one class and write it with its metadata."""
 
-import os
-import sys
-
-sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+from common import job
 
 from sonardet.objects import build_object, save_object
-from sonardet.workflow import rule_logging
 
-with rule_logging(snakemake, "object_mesh") as log:  # noqa: F821
+with job(snakemake, "object_mesh") as log:  # noqa: F821
     cls = snakemake.wildcards.cls  # noqa: F821
     objects = snakemake.params.objects  # noqa: F821
     model = build_object(cls, objects)

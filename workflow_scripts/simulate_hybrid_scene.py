@@ -1,16 +1,14 @@
 """Implant simulated objects into a real survey line's seabed (one hybrid scene)."""
 
-import os
-import sys
+from common import job
 
-sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+import os
 
 from sonardet.objects import load_object
 from sonardet.sim.hybrid import load_real_survey, simulate_hybrid_scene
 from sonardet.sim.scene import save_scene
-from sonardet.workflow import rule_logging
 
-with rule_logging(snakemake, "simulate_scene_hybrid") as log:  # noqa: F821
+with job(snakemake, "simulate_scene_hybrid") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     cfg = smk.params.config
     objects = {os.path.basename(p)[: -len(".json")]: load_object(p) for p in smk.input.meta}

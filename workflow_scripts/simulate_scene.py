@@ -1,15 +1,13 @@
 """Synthesize one scene: seabed, rocks, settled objects, MBES survey, annotations."""
 
-import os
-import sys
+from common import job
 
-sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+import os
 
 from sonardet.objects import load_object
 from sonardet.sim.scene import save_scene, simulate_scene
-from sonardet.workflow import rule_logging
 
-with rule_logging(snakemake, "simulate_scene") as log:  # noqa: F821
+with job(snakemake, "simulate_scene") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     cfg = smk.params.config
     objects = {os.path.basename(p)[: -len(".json")]: load_object(p) for p in smk.input.meta}

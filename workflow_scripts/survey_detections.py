@@ -1,10 +1,7 @@
 """Merge the tile detections of one survey (each object once) and write them in the survey's
 coordinates as JSON, CSV and GeoJSON, with a per-tile summary."""
 
-import os
-import sys
-
-sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+from common import job
 
 import json
 from pathlib import Path
@@ -12,9 +9,8 @@ from pathlib import Path
 from sonardet.detect.survey import merge_survey_detections, read_tile_index, write_survey_detections
 from sonardet.io.annotations import read_detections
 from sonardet.io.atomic import atomic_write_text
-from sonardet.workflow import rule_logging
 
-with rule_logging(snakemake, "survey_detections") as log:  # noqa: F821
+with job(snakemake, "survey_detections") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     survey = smk.wildcards.survey
     index, tiles = read_tile_index(smk.input.index)

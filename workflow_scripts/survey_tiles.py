@@ -1,17 +1,13 @@
 """Cut one survey file into tiles (checkpoint survey_tiles): tiles/{tile}.npz and the tile index JSON."""
 
-import os
-import sys
-
-sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+from common import job
 
 from pathlib import Path
 
 from sonardet.detect.survey import object_footprint_m, split_survey
 from sonardet.objects import load_object
-from sonardet.workflow import rule_logging
 
-with rule_logging(snakemake, "survey_tiles") as log:  # noqa: F821
+with job(snakemake, "survey_tiles") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     survey, cfg = smk.wildcards.survey, smk.params.split
     objects = {Path(p).stem: load_object(p) for p in smk.input.meta}

@@ -1,9 +1,6 @@
 """Scan one class's mesh with the MBES sensor model from several views and save the templates."""
 
-import os
-import sys
-
-sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
+from common import job
 
 import numpy as np
 
@@ -11,9 +8,8 @@ from sonardet.seeds import derive_seed
 from sonardet.objects import load_object
 from sonardet.sim.mbes import SensorConfig
 from sonardet.sim.templates import save_templates, scan_templates
-from sonardet.workflow import rule_logging
 
-with rule_logging(snakemake, "template_scan") as log:  # noqa: F821
+with job(snakemake, "template_scan") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     obj = load_object(smk.input.json, smk.input.ply)
     rng = np.random.default_rng(derive_seed(smk.params.seed, "template", obj.cls))

@@ -1,9 +1,10 @@
 """`sonardet` command line: the workflow's stages for use outside Snakemake.
 
-    sonardet export-scene results/scenes/s0000.npz out.las   # open it in CloudCompare
-    sonardet build-objects --config config/config.yaml --out results/objects
-    sonardet simulate --config config/config.yaml --scene s0000 --out results/scenes
+    sonardet export-scene scenes/s0000.npz out.las   # open it in CloudCompare
+    sonardet build-objects --config config/config.yaml --out objects
+    sonardet simulate --config config/config.yaml --objects objects --scene s0000 --out scenes
     sonardet detect --input survey.xyz.gz --crs EPSG:32610 --out det.json --csv det.csv --geojson det.geojson
+    sonardet detect --method sasa_100 --model models/sasa_100/model.pt --input survey.xyz.gz --out det.json
 """
 
 from __future__ import annotations
@@ -32,10 +33,10 @@ def _export_scene(args) -> int:
 
 
 def _build_objects(args) -> int:
-    from .config import load_config
+    from .config import read_config
     from .objects import build_object, save_object
 
-    cfg = load_config(args.config)
+    cfg = read_config(args.config)
     for cls in cfg["classes"]:
         meta = save_object(build_object(cls, cfg["objects"]), cfg["objects"]["density_kg_m3"],
                            args.out / f"{cls}.ply", args.out / f"{cls}.json")
@@ -44,11 +45,11 @@ def _build_objects(args) -> int:
 
 
 def _simulate(args) -> int:
-    from .config import load_config
+    from .config import read_config
     from .objects import load_object
     from .sim.scene import save_scene, simulate_scene
 
-    cfg = load_config(args.config)
+    cfg = read_config(args.config)
     objects = {c: load_object(args.objects / f"{c}.json") for c in cfg["classes"]}
     scene = simulate_scene(args.scene, cfg, objects)
     save_scene(scene, args.out / f"{args.scene}.npz", args.out / f"{args.scene}.json")
@@ -56,25 +57,31 @@ def _simulate(args) -> int:
     return 0
 
 
-def _detect_inputs(results: Path, classes: list[str]):
-    """Object models and template scans of `classes` from a results folder; a missing file is a
-    FileNotFoundError naming it and the Snakemake target that builds it."""
+def _detect_inputs(results: Path, classes: list[str], kinds) -> tuple[dict | None, dict | None]:
+    """Object models and template scans of `classes` from a results folder, as far as the method
+    needs them (`kinds`: its resources); a missing file is a FileNotFoundError naming it and the
+    Snakemake target that builds it."""
+    from .io.templates import read_templates
     from .objects import load_object
-    from .sim.templates import load_templates
 
+    if "objects" not in kinds and "templates" not in kinds:
+        return None, None
     objects, templates = {}, {}
     for cls in classes:
-        for f in (results / "objects" / f"{cls}.json", results / "objects" / f"{cls}.ply",
-                  results / "templates" / f"{cls}.npz"):
+        need = [results / "objects" / f"{cls}.json", results / "objects" / f"{cls}.ply"]
+        if "templates" in kinds:
+            need.append(results / "templates" / f"{cls}.npz")
+        for f in need:
             if not f.is_file():
-                target = f"results/{f.parent.name}/{f.name}"
+                target = "/".join(f.parts[-3:])
                 raise FileNotFoundError(
                     f"{f}: missing (class {cls!r}); build it with `snakemake --cores 2 {target}` in the "
                     f"workflow folder, point --results at a folder holding objects/ and templates/, or leave "
                     f"the class out with --classes")
         objects[cls] = load_object(results / "objects" / f"{cls}.json")
-        templates[cls] = load_templates(results / "templates" / f"{cls}.npz")
-    return objects, templates
+        if "templates" in kinds:
+            templates[cls] = read_templates(results / "templates" / f"{cls}.npz")
+    return objects, (templates if "templates" in kinds else None)
 
 
 def _detector_params(text: str | None) -> dict | None:
@@ -107,26 +114,54 @@ def _detect(args) -> int:
         raise ValueError(str(exc)) from None
 
 
+def _detect_method(args, cfg: dict):
+    """The method of `sonardet detect`, with --params on top of its settings (validated)."""
+    from . import methods
+
+    method = methods.get(args.method, cfg)
+    params = _detector_params(args.params)
+    if params:
+        method = method.with_settings(params=params)
+    methods.family(method.family).check_params(method)  # an unknown key fails before the slow parts
+    return method
+
+
+def _footprint_m(objects: dict | None, classes: list[str], cfg: dict) -> float:
+    """Largest object footprint (m, any yaw): from the object models when loaded, else from the class
+    specs at the config's parameters."""
+    from .objects import footprint_radius_m
+
+    if objects:
+        return max(2.0 * float(np.max(np.hypot(*np.asarray(o.mesh.vertices)[:, :2].T))) for o in objects.values())
+    return max(2.0 * footprint_radius_m(c, cfg["objects"]) for c in classes)
+
+
 def _run_detect(args) -> int:
     import time
 
-    from .config import validate_config
-    from .detect.model_based import detect, resolve_params
-    from .detect.tiling import detect_tiled, plan_tiles
+    from . import SCHEMA_VERSION, methods
     from .io.annotations import to_builtin, validate_detections
     from .io.atomic import atomic_write_text
     from .io.export import write_detections_csv, write_detections_geojson
     from .io.pointcloud import read_points
-    from . import SCHEMA_VERSION
+    from .methods import Resources
+    from .detect.tiling import detect_tiled, plan_tiles
 
     t0 = time.perf_counter()
-    classes = list(args.classes) if args.classes else list(validate_config({})["classes"])
-    params = _detector_params(args.params)
-    resolve_params(params, args.variant)  # an unknown key or variant fails before the slow parts
-    objects, templates = _detect_inputs(args.results, classes)
-    # Footprint at any yaw: twice the largest horizontal distance of a vertex from the class axis.
-    footprint = max(2.0 * float(np.max(np.hypot(*np.asarray(o.mesh.vertices)[:, :2].T))) for o in objects.values())
+    cfg = _config(args)
+    classes = list(args.classes) if args.classes else list(cfg["classes"])
+    cfg["classes"] = classes
+    method = _detect_method(args, cfg)
+    objects, templates = _detect_inputs(args.results, classes, method.resources)
+    model = args.model if args.model is not None else args.results / "models" / method.name / "model.pt"
+    if "model" in method.resources and not model.is_file():
+        raise FileNotFoundError(f"{model}: no trained model for {method.name}; train it with `snakemake --cores 2 "
+                                f"{model}` in the workflow folder or give its file with --model")
+    footprint = _footprint_m(objects, classes, cfg)
     plan_tiles((0.0, 0.0, 0.0, 0.0), args.tile_m, args.overlap_m, footprint)  # bad tiling fails before reading
+    detector = methods.family(method.family).load(method, Resources(
+        objects=objects, templates=templates, model_path=model if "model" in method.resources else None,
+        threads=args.threads))
     cloud = read_points(args.input, crs=args.crs)
     xyz = cloud.xyz
     if len(xyz) == 0:
@@ -134,25 +169,22 @@ def _run_detect(args) -> int:
     lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
     tiles = plan_tiles((lo[0], lo[1], hi[0], hi[1]), args.tile_m, args.overlap_m, footprint)
 
-    def run(points):
-        return detect(points, templates, objects, params, args.variant)
-
     t = time.perf_counter()
     if len(tiles) == 1:
-        dets, _ = run(xyz)
+        dets, _ = detector(xyz)
         n_tiles = 1
     else:
         logging.getLogger("sonardet.detect").info("%s: %d points over %.1f x %.1f m in %d tiles of <= %g m "
                                                   "(overlap %g m)", args.input, len(xyz), hi[0] - lo[0],
                                                   hi[1] - lo[1], len(tiles), args.tile_m, args.overlap_m)
-        dets, rows = detect_tiled(xyz, run, args.tile_m, args.overlap_m, progress=True, min_overlap_m=footprint)
+        dets, rows = detect_tiled(xyz, detector, args.tile_m, args.overlap_m, progress=True, min_overlap_m=footprint)
         n_tiles = sum(not r["skipped"] for r in rows)
     t_detect = time.perf_counter() - t
 
     # The detection file's scene id is the output file's stem: the project's reader
     # (io.annotations.read_detections) checks that id against the file name by default.
     frame = f"{cloud.crs} metres" if cloud.crs else "the input file's coordinates (metres, CRS unknown)"
-    doc = {"schema_version": SCHEMA_VERSION, "scene": args.out.stem, "method": f"model_based_{args.variant}",
+    doc = {"schema_version": SCHEMA_VERSION, "scene": args.out.stem, "method": method.name,
            "source": str(args.input), "crs": cloud.crs, "detections": to_builtin(dets)}
     doc = validate_detections(doc, args.out, classes, args.out.stem)
     atomic_write_text(args.out, json.dumps(doc, indent=1, allow_nan=False) + "\n")
@@ -163,9 +195,21 @@ def _run_detect(args) -> int:
         write_detections_geojson(args.geojson, dets, crs=cloud.crs)
     n_acc = sum(bool(d.get("extras", {}).get("accepted", True)) for d in dets)
     print(f"sonardet detect: {args.input.name}: {len(xyz)} points, {n_tiles} tile(s), {len(dets)} detection(s) "
-          f"({n_acc} accepted), {args.variant}, {t_detect:.1f} s detection, {time.perf_counter() - t0:.1f} s "
+          f"({n_acc} accepted), {method.name}, {t_detect:.1f} s detection, {time.perf_counter() - t0:.1f} s "
           f"total, coordinates in {cloud.crs or 'the input frame'} -> {args.out}")
     return 0
+
+
+def _config(args) -> dict:
+    """The validated config of a command: --config's file, or the defaults (with --plugins)."""
+    from .config import read_config, validate_config
+
+    if getattr(args, "config", None) is not None:
+        cfg = read_config(args.config)
+        if getattr(args, "plugins", None):
+            cfg = validate_config({**cfg, "plugins": list(cfg["plugins"]) + list(args.plugins)}, source=str(args.config))
+        return cfg
+    return validate_config({"plugins": list(getattr(args, "plugins", None) or [])}, source="defaults")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -173,23 +217,23 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="sonardet", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser("export-scene", help="write a scene's soundings as PLY, LAS/LAZ or XYZ text")
-    p.add_argument("scene", type=Path, help="results/scenes/<id>.npz")
+    p.add_argument("scene", type=Path, help="a scene's soundings file, <id>.npz")
     p.add_argument("out", type=Path, help="output file; the suffix picks the format (.ply .las .laz .xyz .csv)")
     p.add_argument("--crs", default=None, help="CRS to record (e.g. EPSG:32633); scenes are local by default")
     p.set_defaults(func=_export_scene)
     p = sub.add_parser("build-objects", help="build the class meshes of a config")
     p.add_argument("--config", type=Path, default=Path("config/config.yaml"))
-    p.add_argument("--out", type=Path, default=Path("results/objects"))
+    p.add_argument("--out", type=Path, required=True, help="folder for {cls}.ply and {cls}.json")
     p.set_defaults(func=_build_objects)
     p = sub.add_parser("simulate", help="synthesize one scene")
     p.add_argument("--config", type=Path, default=Path("config/config.yaml"))
-    p.add_argument("--objects", type=Path, default=Path("results/objects"))
+    p.add_argument("--objects", type=Path, required=True, help="folder with the objects' {cls}.json and {cls}.ply")
     p.add_argument("--scene", default="s0000")
-    p.add_argument("--out", type=Path, default=Path("results/scenes"))
+    p.add_argument("--out", type=Path, required=True, help="folder for {scene}.npz and {scene}.json")
     p.set_defaults(func=_simulate)
     p = sub.add_parser(
-        "detect", help="detect reef structures in a survey point cloud (model-based, tiled)",
-        description="Model-based detection on a survey file. Coordinates are read in float64 and kept: the "
+        "detect", help="detect reef structures in a survey point cloud (any registered method, tiled)",
+        description="Detection with any registered method (training-free or learned) on a survey file. Coordinates are read in float64 and kept: the "
                     "outputs are in the input's coordinates (e.g. UTM metres). Surveys larger than one tile are "
                     "processed tile by tile. The JSON's scene id is the output file's stem (name the output "
                     "after the survey to keep its name).")
@@ -200,10 +244,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--geojson", type=Path, default=None, help="also write the box footprints as GeoJSON")
     p.add_argument("--results", type=Path, default=Path("results"),
                    help="folder with objects/{cls}.json|.ply and templates/{cls}.npz (default: results)")
-    p.add_argument("--variant", choices=("ours", "paper"), default="ours", help="detector variant (default: ours)")
+    p.add_argument("--method", default="model_based_ours",
+                   help="detection method: any registered one, e.g. model_based_ours (default), model_based_paper, "
+                        "sasa_100 (needs its trained model: --model)")
+    p.add_argument("--model", type=Path, default=None,
+                   help="trained model file of a learned method (default: <results>/models/<method>/model.pt)")
+    p.add_argument("--config", type=Path, default=None,
+                   help="workflow config whose settings the method uses (default: the built-in defaults)")
+    p.add_argument("--plugins", nargs="+", default=None,
+                   help="plugin modules (.py files or module names) registering more methods or classes")
+    p.add_argument("--threads", type=int, default=1, help="CPU threads of a learned method (default: 1)")
     p.add_argument("--params", default=None,
-                   help="detector parameter overrides: a JSON object or a .json file (keys of "
-                        "sonardet.detect.model_based.DEFAULTS / PAPER)")
+                   help="parameter overrides of the method: a JSON object or a .json file (model-based: keys of "
+                        "sonardet.detect.model_based.DEFAULTS / PAPER; SASA: its inference keys)")
     p.add_argument("--tile-m", type=float, default=40.0, help="largest tile side in metres (default: 40)")
     p.add_argument("--overlap-m", type=float, default=3.0,
                    help="tile overlap in metres, at least the largest object footprint (default: 3)")

@@ -1,4 +1,5 @@
-"""Glue for the thin Snakemake scripts: logging to the rule's log file and error reporting.
+"""Glue for the thin Snakemake scripts: plugins, logging to the rule's log file, error reporting, and
+a job's method and resources.
 
 Takes the `snakemake` object duck-typed, so the library imports nothing from Snakemake.
 """
@@ -10,6 +11,10 @@ import sys
 import time
 import traceback
 from contextlib import contextmanager
+from pathlib import Path
+
+from .methods import Method, Resources
+from .plugins import load_plugins
 
 
 @contextmanager
@@ -29,3 +34,33 @@ def rule_logging(smk, name: str):
         log.error("failed:\n%s", traceback.format_exc())
         raise
     log.info("done in %.2f s", time.perf_counter() - t0)
+
+
+@contextmanager
+def job(smk, name: str):
+    """One workflow job: the config's plugins imported (they may register the job's method or
+    classes), then :func:`rule_logging`."""
+    with rule_logging(smk, name) as log:
+        load_plugins((getattr(smk, "config", None) or {}).get("plugins") or [])
+        yield log
+
+
+def job_method(smk) -> Method:
+    """The Method a job runs (the rule's `params.method`)."""
+    return Method.from_dict(smk.params.method)
+
+
+def job_resources(smk, method: Method | None = None) -> Resources:
+    """A job's Resources from its named inputs: `meta` (object JSONs, meshes beside them) -> object
+    models, `templates` -> template scans, `model` -> the trained model file; threads from the job."""
+    from .io.templates import read_templates
+    from .objects import load_object
+
+    inp = smk.input
+    names = set(inp.keys()) if hasattr(inp, "keys") else set()
+    objects = {Path(p).stem: load_object(p) for p in inp.meta} if "meta" in names else None
+    templates = {Path(p).stem: read_templates(p) for p in inp.templates} if "templates" in names else None
+    model = Path(inp.model) if "model" in names else None
+    device = (method.settings.get("device", "auto") if method is not None else "auto")
+    return Resources(objects=objects, templates=templates, model_path=model, device=device,
+                     threads=int(getattr(smk, "threads", 1) or 1))

@@ -84,9 +84,9 @@ def survey_defaults() -> dict:
     """Default settings of one entry of the config's `surveys` block, from the config schema
     (`surveys.additionalProperties.properties.*.default`): enabled, crs, method, tile_m (m), overlap_m
     (m), chunk_points. `path` has no default."""
-    from ..config import load_schema
+    from ..config import read_schema
 
-    props = load_schema()["properties"]["surveys"]["additionalProperties"]["properties"]
+    props = read_schema()["properties"]["surveys"]["additionalProperties"]["properties"]
     return {k: v["default"] for k, v in props.items() if "default" in v}
 
 

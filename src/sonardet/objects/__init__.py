@@ -1,16 +1,21 @@
-"""Procedural meshes of the reef element classes and their metadata."""
+"""Object classes (registry of specs), their procedural meshes and the on-disk object files."""
 
-from .catalog import ObjectInfo, canonical_box, load_object, metadata, save_object
-from .meshes import KNOWN_CLASSES, SYMMETRY_CONTINUOUS, ObjectModel, build_object
+from . import classes
+from .catalog import ObjectInfo, canonical_box, load_object, metadata, object_info, save_object
+from .classes import ClassSpec, build_object, footprint_radius_m
+from .meshes import SYMMETRY_CONTINUOUS, ObjectModel
 
 __all__ = [
-    "KNOWN_CLASSES",
     "SYMMETRY_CONTINUOUS",
+    "ClassSpec",
     "ObjectInfo",
     "ObjectModel",
     "build_object",
     "canonical_box",
+    "classes",
+    "footprint_radius_m",
     "load_object",
     "metadata",
+    "object_info",
     "save_object",
 ]

@@ -12,6 +12,7 @@ import trimesh
 from .. import SCHEMA_VERSION
 from ..geometry import box_from_points, quat_multiply, quat_to_matrix, yaw_of_matrix
 from ..io.atomic import atomic_write_bytes, atomic_write_text
+from . import classes
 from .meshes import SYMMETRY_CONTINUOUS, ObjectModel
 
 
@@ -26,10 +27,24 @@ class ObjectInfo:
     volume_m3: float
     symmetry_order: int
     extents_m: np.ndarray
+    #: Canonical-frame unit axes (K,3); the object rests upright when one of them points up.
+    up_axes: np.ndarray
+    #: Tumbled poses a detector tries on leftovers (sonardet.objects.classes.TUMBLE_MODES).
+    tumble: dict
 
     def box(self, t, q) -> np.ndarray:
         """Evaluation box `[x,y,z,l,w,h,yaw]` of this object at pose (t, q=(w,x,y,z))."""
         return canonical_box(np.asarray(self.mesh.vertices), t, q, self.symmetry_order)
+
+
+def object_info(model: ObjectModel, density_kg_m3: float) -> ObjectInfo:
+    """The ObjectInfo of a freshly built object (what reading its written files gives, without them)."""
+    meta = classes.get(model.cls).metadata()
+    vol = float(model.mesh.volume)
+    return ObjectInfo(cls=model.cls, mesh=model.mesh, convex_parts=list(model.convex_parts),
+                      mass_kg=vol * float(density_kg_m3), volume_m3=vol, symmetry_order=int(model.symmetry_order),
+                      extents_m=np.asarray(model.mesh.extents, dtype=np.float64),
+                      up_axes=np.asarray(meta["up_axes"], dtype=np.float64), tumble=meta["tumble"])
 
 
 def canonical_box(vertices, t, q, symmetry_order: int) -> np.ndarray:
@@ -72,6 +87,7 @@ def metadata(model: ObjectModel, density_kg_m3: float) -> dict:
         "n_faces": int(len(mesh.faces)),
         "watertight": bool(mesh.is_watertight),
         "spec": _jsonable(model.spec),
+        **classes.get(model.cls).metadata(),
         "convex_parts": [np.round(p, 6).tolist() for p in model.convex_parts],
     }
 
@@ -104,6 +120,10 @@ def load_object(json_path, ply_path=None) -> ObjectInfo:
             f"{json_path}: schema_version {meta.get('schema_version')!r} is not {SCHEMA_VERSION}; "
             "rebuild it with `snakemake results/objects/<cls>.json`"
         )
+    missing = [k for k in ("up_axes", "tumble") if k not in meta]
+    if missing:
+        raise ValueError(f"{json_path}: no {', '.join(missing)} (written by an older sonardet); rebuild it with "
+                         "`snakemake results/objects/<cls>.json`")
     mesh = trimesh.load(ply_path, force="mesh", process=False)
     if len(mesh.faces) == 0:
         raise ValueError(f"{ply_path}: mesh has no faces")
@@ -115,4 +135,6 @@ def load_object(json_path, ply_path=None) -> ObjectInfo:
         volume_m3=float(meta["volume_m3"]),
         symmetry_order=int(meta["symmetry_order"]),
         extents_m=np.asarray(meta["extents_m"], dtype=np.float64),
+        up_axes=np.asarray(meta["up_axes"], dtype=np.float64).reshape(-1, 3),
+        tumble=dict(meta["tumble"]),
     )

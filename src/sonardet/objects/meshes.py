@@ -1,4 +1,5 @@
-"""Procedural, watertight triangle meshes of the four reef element classes.
+"""Procedural, watertight triangle meshes of the four reef element classes (their specs, defaults and
+the dispatch by class name: :mod:`sonardet.objects.classes`).
 
 Every mesh is built in its canonical frame: z up, the vertical symmetry axis (through the tetrapod's
 hub, the cone's and the ring's axis) at x = y = 0, the lowest point at z = 0, canonical yaw 0, and
@@ -17,9 +18,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
-
-#: Sonar classes this package can build.
-KNOWN_CLASSES = ("reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s")
 
 #: Symmetry order about the canonical z axis: 0 = continuous (any yaw), n = n-fold.
 SYMMETRY_CONTINUOUS = 0
@@ -253,26 +251,3 @@ def build_reef_ring(height_m: float, outer_diameter_m: float, outer_wall_m: floa
     spec = {"height_m": height_m, "outer_diameter_m": outer_diameter_m, "outer_wall_m": outer_wall_m,
             "inner_wall_m": inner_wall_m, "gap_m": gap_m, "n_ribs": n_ribs}
     return ObjectModel("reef_ring", mesh, convex, float(spec_volume), SYMMETRY_CONTINUOUS, spec)
-
-
-def build_object(cls: str, objects_cfg: dict) -> ObjectModel:
-    """Build the mesh of class `cls` from the `objects` section of the config (see config/schema.yaml)."""
-    density = objects_cfg["density_kg_m3"]
-    holes = objects_cfg["holes"]
-    c = objects_cfg[cls]
-    if cls in ("tetrapod_s", "tetrapod_b"):
-        model = build_tetrapod(cls, c["height_m"], c["mass_kg"], density, c["taper"], objects_cfg["sections"] // 2)
-    elif cls == "reef_cone":
-        model = build_reef_cone(c["height_m"], c["base_diameter_m"], c["top_diameter_m"], c["wall_m"],
-                                c["n_holes"], tuple(c["hole_diameter_m"]), holes, objects_cfg["hole_seed"],
-                                objects_cfg["sections"])
-    elif cls == "reef_ring":
-        model = build_reef_ring(c["height_m"], c["outer_diameter_m"], c["outer_wall_m"], c["inner_wall_m"],
-                                c["gap_m"], c["outer_holes"], c["outer_hole_diameter_m"], c["inner_holes"],
-                                c["inner_hole_diameter_m"], c["n_ribs"], c["rib_m"], holes,
-                                objects_cfg["sections"])
-    else:
-        raise ValueError(f"unknown class {cls!r}; known classes: {', '.join(KNOWN_CLASSES)}")
-    if not model.mesh.is_watertight:
-        raise RuntimeError(f"{cls}: built mesh is not watertight (a boolean failed); try other objects.sections")
-    return model

@@ -13,7 +13,9 @@ from pathlib import Path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from .. import methods
 from ..io.atomic import atomic_path
+from ..objects import classes
 
 #: Okabe-Ito palette (Wong 2011, Nature Methods 8:441).
 OKABE_ITO = {
@@ -27,22 +29,7 @@ OKABE_ITO = {
     "purple": "#CC79A7",
 }
 
-CLASS_COLORS = {
-    "reef_ring": OKABE_ITO["blue"],
-    "reef_cone": OKABE_ITO["vermillion"],
-    "tetrapod_b": OKABE_ITO["green"],
-    "tetrapod_s": OKABE_ITO["purple"],
-}
-
 GT_STYLE = {"color": OKABE_ITO["black"], "linestyle": "-", "marker": "s", "label": "ground truth"}
-
-METHOD_STYLES = {
-    "model_based_paper": {"color": OKABE_ITO["orange"], "linestyle": "--", "marker": "o"},
-    "model_based_ours": {"color": OKABE_ITO["vermillion"], "linestyle": "--", "marker": "D"},
-    "sasa_25": {"color": OKABE_ITO["sky_blue"], "linestyle": "-.", "marker": "v"},
-    "sasa_50": {"color": OKABE_ITO["green"], "linestyle": "-.", "marker": "^"},
-    "sasa_100": {"color": OKABE_ITO["blue"], "linestyle": ":", "marker": "P"},
-}
 
 _SPARE = [OKABE_ITO[k] for k in ("purple", "yellow", "orange", "sky_blue", "green", "blue")] + ["#777777"]
 
@@ -59,24 +46,33 @@ def _stable_pick(name: str, options: list):
 
 
 def class_color(cls: str) -> str:
-    """Colour (hex) of an object class; unknown classes get a stable spare colour."""
-    return CLASS_COLORS.get(cls) or _stable_pick(cls, _SPARE)
+    """Colour (hex) of an object class: its spec's (sonardet.objects.classes); an unregistered class
+    gets a stable spare colour."""
+    return classes.get(cls).colour if cls in classes.names() else _stable_pick(cls, _SPARE)
+
+
+def _family_of(method: str):
+    """The registered family whose name prefix a method's name has (the longest one; None if none)."""
+    fams = [f for f in methods.families() if method == f.name or (f.prefix and method.startswith(f.prefix))]
+    return max(fams, key=lambda f: len(f.prefix)) if fams else None
 
 
 def method_family(method: str) -> str:
-    """'model-based', 'SASA' or 'other', from a method id such as 'model_based_ours' or 'sasa_50'."""
-    if method.startswith("model_based"):
-        return "model-based"
-    if method.startswith("sasa"):
-        return "SASA"
-    return "other"
+    """The report label of a method's family ('model-based', 'SASA', ...), 'other' if unknown."""
+    fam = _family_of(method)
+    return fam.label if fam is not None else "other"
+
+
+_FAMILY_LINESTYLES = {"model-based": "--", "SASA": "-."}
 
 
 def method_style(method: str) -> dict:
-    """Colour, linestyle and marker of a method (fixed for the known methods, stable for others)."""
-    if method in METHOD_STYLES:
-        return dict(METHOD_STYLES[method])
-    ls = {"model-based": "--", "SASA": "-."}.get(method_family(method), "-")
+    """Colour, linestyle and marker of a method (its family's fixed style for the known methods,
+    a stable spare colour otherwise)."""
+    fam = _family_of(method)
+    if fam is not None and method in fam.styles:
+        return dict(fam.styles[method])
+    ls = _FAMILY_LINESTYLES.get(method_family(method), "-")
     return {"color": _stable_pick(method, _SPARE), "linestyle": ls, "marker": "X"}
 
 

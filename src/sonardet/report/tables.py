@@ -18,20 +18,8 @@ import pandas as pd
 from ..eval.evaluate import threshold_key
 from ..io.atomic import atomic_write_text
 from .inputs import benchmark_summary, count_annotations, load_json, load_metrics
+from .study import STUDY, STUDY_SOURCE, study_map
 
-#: Figures of the source study, synthetic test scenes (its results section). The study's reported mAP
-#: goes into the headline-mAP column of our tables; values it does not report stay empty.
-STUDY = {
-    "comparison": {
-        "SASA (study)": {"mAP": 0.98, "predictions": 991},
-        "model-based (study)": {"mAP": 0.97, "predictions": 957},
-    },
-    "sasa_fraction_mAP": {25: 0.96, 50: 0.97, 100: 0.98},
-    "model_based_mAP": 0.97,
-    "dataset": {"scenes": {"train": 80, "test": 20, "all": 100}, "objects": {"all": 5491}},
-}
-
-STUDY_SOURCE = "source study"
 THIS_RUN = "this run"
 
 
@@ -228,45 +216,37 @@ def domain_randomisation_table(metrics: dict, pairs: dict) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _fraction(key) -> int:
-    """25, '25', '25%' or 'sasa_25' -> 25."""
-    s = str(key).strip().rstrip("%").strip()
-    return int(s.rsplit("_", 1)[-1])
+def fraction_table(methods: list[dict], metrics: dict, scenes_dir=None) -> pd.DataFrame:
+    """Each trained method at its training fraction beside the training-free methods.
 
-
-def fraction_table(train_summaries: dict, metrics: dict, train_annotations: dict | None = None,
-                   scenes_dir=None) -> pd.DataFrame:
-    """SASA trained on each data fraction beside the training-free model-based detector.
-
-    train_summaries: fraction (25, '25' or 'sasa_25') -> `models/sasa_{f}/train.json` path or dict.
-    metrics: method -> metrics.json path or dict; SASA rows read `sasa_{f}`, and every `model_based*`
-    method gets a row with 0 training scenes ('no training'). Training annotations per fraction come
-    from train_annotations (fraction -> count) or, when scenes_dir (the `scenes/` folder) is given, by
-    counting the visible objects of the summary's `train_scenes`; else they stay empty.
+    methods: one dict per method, {name, family, trained, fraction, training (label), summary
+    (trained: `models/{method}/train.json` path or dict), annotations (optional: training annotations,
+    else counted from the summary's `train_scenes` in scenes_dir when given)}. metrics: method ->
+    metrics.json path or dict (a method without one gets NaN). Rows: trained methods by ascending
+    fraction, then the untrained ones with 0 training scenes, in the given order. The study's mAP of
+    the same family and fraction (sonardet.report.study) is set beside.
     Columns: method, training, training data (%), training scenes, training annotations,
     mAP@{headline}m, mAP@{headline}m (study).
     """
     loaded = {k: load_metrics(v) for k, v in metrics.items()}
     headline = next(iter(loaded.values()))["headline_m"] if loaded else 0.5
     col, scol = _mAP_col(headline), _mAP_col(headline) + " (study)"
-    ann = {_fraction(k): v for k, v in (train_annotations or {}).items()}
     rows = []
-    for key, summ in sorted(train_summaries.items(), key=lambda kv: _fraction(kv[0])):
-        f = _fraction(key)
-        s = load_json(summ)
-        n_ann = ann.get(f)
+    trained = sorted((m for m in methods if m["trained"]), key=lambda m: int(m["fraction"]))
+    for m in trained:
+        s = load_json(m["summary"])
+        n_ann = m.get("annotations")
         if n_ann is None and scenes_dir is not None and s.get("train_scenes"):
             n_ann = count_annotations(Path(scenes_dir) / f"{sid}.json" for sid in s["train_scenes"])
-        m = loaded.get(f"sasa_{f}")
-        rows.append({"method": f"sasa_{f}", "training": f"SASA, {f} % of the training split",
-                     "training data (%)": f, "training scenes": s.get("n_train_scenes"),
-                     "training annotations": n_ann, col: m["mAP_headline"] if m else np.nan,
-                     scol: STUDY["sasa_fraction_mAP"].get(f, np.nan)})
-    for method, m in loaded.items():
-        if method.startswith("model_based"):
-            rows.append({"method": method, "training": "no training", "training data (%)": 0,
-                         "training scenes": 0, "training annotations": 0, col: m["mAP_headline"],
-                         scol: STUDY["model_based_mAP"]})
+        got = loaded.get(m["name"])
+        rows.append({"method": m["name"], "training": m["training"], "training data (%)": int(m["fraction"]),
+                     "training scenes": s.get("n_train_scenes"), "training annotations": n_ann,
+                     col: got["mAP_headline"] if got else np.nan, scol: study_map(m["family"], m["fraction"])})
+    for m in methods:
+        if not m["trained"] and m["name"] in loaded:
+            rows.append({"method": m["name"], "training": m["training"], "training data (%)": 0,
+                         "training scenes": 0, "training annotations": 0, col: loaded[m["name"]]["mAP_headline"],
+                         scol: study_map(m["family"], None)})
     cols = ["method", "training", "training data (%)", "training scenes", "training annotations", col, scol]
     df = pd.DataFrame(rows, columns=cols)
     return _counts_as_int(df, ["training data (%)", "training scenes", "training annotations"])
@@ -286,44 +266,53 @@ def _stage_rows(method: str, stats: list[dict], mem_mb) -> list[dict]:
     return rows
 
 
-def timing_table(model_based_stats: dict | None = None, sasa_inference: dict | None = None,
-                 sasa_train: dict | None = None, simulation_benchmarks=None, scene_jsons=None,
+def timing_table(per_scene_stats: dict | None = None, per_dataset_timing: dict | None = None,
+                 train_summaries: dict | None = None, simulation_benchmarks=None, scene_jsons=None,
                  benchmarks: dict | None = None) -> pd.DataFrame:
     """Run time and memory per method and stage (seconds, MB), one row per (method, stage).
 
-    model_based_stats: method -> list of per-scene `stats/{method}/{dataset}/{scene}.json` (paths or
-      dicts); gives mean and max over scenes of every entry of `seconds` (ground, proposals,
-      registration, scoring, selection, ..., total last), unit s/scene.
-    sasa_inference: method -> `stats/{method}/{dataset}/inference.json`; stage 'inference', s/scene
-      (mean only), peak memory from its peak_rss_mb.
-    sasa_train: method (e.g. 'sasa_25') -> `models/{method}/train.json`; stages 'training' (s, total
-      training time) and 'training step' (s/step), peak memory from peak_rss_mb.
+    per_scene_stats: method -> list of per-scene `stats/{method}/{dataset}/{scene}.json` (paths or
+      dicts) of a per-scene method; gives mean and max over scenes of every entry of `seconds`
+      (ground, proposals, registration, ..., total last), unit s/scene.
+    per_dataset_timing: method -> `stats/{method}/{dataset}/inference.json` of a per-dataset method;
+      stage 'inference', s/scene (mean only), peak memory from its peak_rss_mb.
+    train_summaries: method -> `models/{method}/train.json`; stages 'training' (s, total training time)
+      and 'training step' (s/step), peak memory from peak_rss_mb.
     simulation_benchmarks: Snakemake benchmark `.tsv` files of the scene simulation rule; stage
       'scene (benchmark)', s/scene, peak memory = max of max_rss.
     scene_jsons: `scenes/{scene}.json` (paths or dicts); their `timings_s` give the simulator's stages
       (seabed, layout, physics, scan, ...), s/scene.
-    benchmarks: method -> benchmark `.tsv` files of its detection or inference rule; their max_rss fills
-      the method's peak memory where the stats do not give one.
+    benchmarks: method -> benchmark `.tsv` files of its detection jobs; their max_rss fills the
+      method's peak memory where the stats do not give one.
     Columns: method, stage, unit, n (files averaged), mean, max, peak memory (MB).
     """
     rows = []
     bench_mem = {m: benchmark_summary(p)["max_rss_mb"] for m, p in (benchmarks or {}).items()}
-    for method, files in (model_based_stats or {}).items():
+    for method, files in (per_scene_stats or {}).items():
         stats = [load_json(f) for f in files]
         if stats:
             rows += _stage_rows(method, stats, bench_mem.get(method, np.nan))
-    for method, src in (sasa_inference or {}).items():
+    for method, src in (per_dataset_timing or {}).items():
         d = load_json(src)
         mem = d.get("peak_rss_mb", bench_mem.get(method, np.nan))
         rows.append({"method": method, "stage": "inference", "unit": "s/scene", "n": d.get("n_scenes"),
                      "mean": d.get("s_per_scene"), "max": np.nan, "peak memory (MB)": mem})
-    for method, src in (sasa_train or {}).items():
+    for method, src in (train_summaries or {}).items():
         d = load_json(src)
-        name = method if str(method).startswith("sasa") else f"sasa_{_fraction(method)}"
-        rows.append({"method": name, "stage": "training", "unit": "s", "n": d.get("n_train_scenes"),
+        rows.append({"method": method, "stage": "training", "unit": "s", "n": d.get("n_train_scenes"),
                      "mean": d.get("train_time_s"), "max": np.nan, "peak memory (MB)": d.get("peak_rss_mb")})
-        rows.append({"method": name, "stage": "training step", "unit": "s/step", "n": d.get("steps"),
+        rows.append({"method": method, "stage": "training step", "unit": "s/step", "n": d.get("steps"),
                      "mean": d.get("s_per_step"), "max": np.nan, "peak memory (MB)": np.nan})
+    rows += _simulation_rows(scene_jsons, simulation_benchmarks)
+    cols = ["method", "stage", "unit", "n", "mean", "max", "peak memory (MB)"]
+    df = pd.DataFrame(rows, columns=cols)
+    for c in ("mean", "max", "peak memory (MB)"):
+        df[c] = pd.to_numeric(df[c], errors="coerce").astype(float)
+    return _counts_as_int(df, ["n"])
+
+
+def _simulation_rows(scene_jsons, simulation_benchmarks) -> list[dict]:
+    rows = []
     sims = [load_json(s) for s in (scene_jsons or [])]
     if sims:
         keys: list[str] = []
@@ -337,11 +326,7 @@ def timing_table(model_based_stats: dict | None = None, sasa_inference: dict | N
         b = benchmark_summary(simulation_benchmarks)
         rows.append({"method": "simulation", "stage": "scene (benchmark)", "unit": "s/scene", "n": b["n"],
                      "mean": b["mean_s"], "max": b["max_s"], "peak memory (MB)": b["max_rss_mb"]})
-    cols = ["method", "stage", "unit", "n", "mean", "max", "peak memory (MB)"]
-    df = pd.DataFrame(rows, columns=cols)
-    for c in ("mean", "max", "peak memory (MB)"):
-        df[c] = pd.to_numeric(df[c], errors="coerce").astype(float)
-    return _counts_as_int(df, ["n"])
+    return rows
 
 
 def dataset_table(stats_csv) -> pd.DataFrame:

@@ -6,9 +6,9 @@ The detector (Open3D) is imported on first use, so reading the parameters (e.g. 
 workflow config) stays cheap.
 """
 
-from .params import DEFAULTS, DESCRIPTIONS, PAPER, resolve_params
+from .params import DEFAULTS, DESCRIPTIONS, PAPER, VARIANTS, resolve_params
 
-__all__ = ["DEFAULTS", "DESCRIPTIONS", "PAPER", "class_models", "detect", "new_stats", "resolve_params"]
+__all__ = ["DEFAULTS", "DESCRIPTIONS", "PAPER", "VARIANTS", "class_models", "detect", "new_stats", "resolve_params"]
 
 
 def __getattr__(name):

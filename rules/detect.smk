@@ -1,0 +1,91 @@
+# Detection with every registered method (sonardet.methods): one job per scene for per-scene methods
+# (model-based), one job per dataset for per-dataset ones (SASA: the model is loaded once), and one
+# training job per trained method.
+
+
+rule detect_scene:
+    input:
+        unpack(detect_scene_inputs),
+    output:
+        detections="results/detections/{method}/{dataset}/{scene}.json",
+        stats="results/stats/{method}/{dataset}/{scene}.json",
+    log:
+        "results/logs/detect_scene/{method}/{dataset}/{scene}.log",
+    benchmark:
+        "results/benchmarks/detect_scene/{method}/{dataset}/{scene}.tsv"
+    wildcard_constraints:
+        method=PER_SCENE_RE,
+    priority: PRIORITY["detect"]
+    conda:
+        "../environment.yml"
+    threads: lambda w: METHOD[w.method].threads
+    resources:
+        mem_mb=MEM_MB["detect"],
+    params:
+        method=lambda w: METHOD[w.method].to_dict(),
+        classes=CLASSES,
+    script:
+        "../workflow_scripts/detect_scene.py"
+
+
+# One rule per evaluation dataset: its outputs are every scene of the dataset.
+for _dataset in DATASETS:
+
+    rule:
+        name:
+            f"detect_dataset_{_dataset}"
+        input:
+            unpack(
+                lambda w, d=_dataset: {
+                    "scenes": dataset_scene_files(d, "npz"),
+                    **method_resources(w.method),
+                }
+            ),
+        output:
+            detections=[
+                detection_file("{method}", _dataset, s) for s in DATASETS[_dataset]
+            ],
+            timing=f"results/stats/{{method}}/{_dataset}/inference.json",
+        log:
+            f"results/logs/detect_dataset/{{method}}/{_dataset}.log",
+        benchmark:
+            f"results/benchmarks/detect_dataset/{{method}}/{_dataset}.tsv"
+        wildcard_constraints:
+            method=PER_DATASET_RE,
+        priority: PRIORITY["detect"]
+        conda:
+            "../environment.yml"
+        threads: lambda w: METHOD[w.method].threads
+        resources:
+            mem_mb=MEM_MB["detect"],
+        params:
+            method=lambda w: METHOD[w.method].to_dict(),
+            classes=CLASSES,
+        script:
+            "../workflow_scripts/detect_dataset.py"
+
+
+rule train:
+    input:
+        unpack(train_inputs),
+    output:
+        model="results/models/{method}/model.pt",
+        loss="results/models/{method}/loss.csv",
+        summary="results/models/{method}/train.json",
+    log:
+        "results/logs/train/{method}.log",
+    benchmark:
+        "results/benchmarks/train/{method}.tsv"
+    wildcard_constraints:
+        method=TRAINED_RE,
+    # The 100 % training is the DAG's longest job: start trainings as soon as their scenes exist.
+    priority: PRIORITY["train"]
+    conda:
+        "../environment.yml"
+    threads: lambda w: METHOD[w.method].threads
+    resources:
+        mem_mb=MEM_MB["train"],
+    params:
+        method=lambda w: METHOD[w.method].to_dict(),
+    script:
+        "../workflow_scripts/train.py"

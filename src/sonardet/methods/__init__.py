@@ -1,0 +1,92 @@
+"""The methods registry: every detection method the workflow runs, evaluates, times and reports
+belongs to a registered :class:`MethodFamily` (in the style of OpenPCDet's model tables).
+
+Built-in families: `model_based` (model_based_{variant}), `sasa` (sasa_{fraction}), `sasa_dr`
+(sasa_dr_{fraction}). A plugin (config key `plugins`) registers more with :func:`register`; their
+settings live under the config's `methods.{family}`.
+"""
+
+from __future__ import annotations
+
+from .base import RESOURCE_KINDS, RUNNERS, Detector, Method, MethodFamily, Resources
+from .model_based import ModelBased
+from .sasa import Sasa, SasaDomainRandomised
+
+__all__ = ["RESOURCE_KINDS", "RUNNERS", "Detector", "Method", "MethodFamily", "Resources", "check", "configured",
+           "families", "family", "get", "main_methods", "register", "variants"]
+
+_FAMILIES: dict[str, MethodFamily] = {}
+
+
+def register(family: MethodFamily) -> MethodFamily:
+    """Add a method family (an instance); re-registering a name replaces it. Returns the family."""
+    if not family.name or not family.name.replace("_", "").isalnum():
+        raise ValueError(f"method family name {family.name!r}: use letters, digits and '_'")
+    _FAMILIES[family.name] = family
+    return family
+
+
+def families() -> list[MethodFamily]:
+    """Registered families, in registration order."""
+    return list(_FAMILIES.values())
+
+
+def family(name: str) -> MethodFamily:
+    """The family called `name`; KeyError naming the registered ones otherwise."""
+    try:
+        return _FAMILIES[name]
+    except KeyError:
+        raise KeyError(f"unknown method family {name!r}; registered: {', '.join(_FAMILIES)}") from None
+
+
+def configured(config: dict) -> list[Method]:
+    """Every method the validated config asks for: family by family in registration order, each in
+    its config order."""
+    return [m for f in _FAMILIES.values() for m in f.methods(config)]
+
+
+def main_methods(config: dict) -> list[Method]:
+    """The configured methods compared in the main tables (all but variants of another method)."""
+    return [m for m in configured(config) if m.variant_of is None]
+
+
+def variants(config: dict) -> list[Method]:
+    """The configured variants of other methods (e.g. SASA with domain randomisation)."""
+    return [m for m in configured(config) if m.variant_of is not None]
+
+
+def get(name: str, config: dict) -> Method:
+    """The method called `name`: a configured one, else the first family that recognises the name
+    (e.g. `sasa_30` for a model trained elsewhere). ValueError naming the configured methods otherwise."""
+    for m in configured(config):
+        if m.name == name:
+            return m
+    for f in _FAMILIES.values():
+        m = f.parse(name, config)
+        if m is not None:
+            return m
+    known = ", ".join(m.name for m in configured(config))
+    raise ValueError(f"unknown method {name!r}; configured methods: {known} (families: {', '.join(_FAMILIES)})")
+
+
+def check(config: dict) -> list[str]:
+    """Problems of the methods' config sections (each naming its key): every family's own checks,
+    unknown families under `methods`, duplicate method names."""
+    out = []
+    for name in config.get("methods", {}) or {}:
+        if name not in _FAMILIES:
+            out.append(f"methods.{name}: no registered method family of that name (registered: "
+                       f"{', '.join(_FAMILIES)}); list the module that registers it under `plugins`")
+    for f in _FAMILIES.values():
+        out += f.check(config)
+    seen = set()
+    for m in configured(config) if not out else []:
+        if m.name in seen:
+            out.append(f"method {m.name!r} is configured twice (two families make the same name)")
+        seen.add(m.name)
+    return out
+
+
+register(ModelBased())
+register(Sasa())
+register(SasaDomainRandomised())

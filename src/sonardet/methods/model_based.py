@@ -1,0 +1,62 @@
+"""The model-based (training-free) family: `model_based_{variant}` for each variant in
+`model_based.variants` (paper, ours), run per scene, parameters from `model_based.{variant}` over the
+variant's defaults (sonardet.detect.model_based.params)."""
+
+from __future__ import annotations
+
+import re
+
+from ..detect.model_based import VARIANTS, resolve_params
+from .base import Method, MethodFamily, Resources
+
+PREFIX = "model_based_"
+
+
+class ModelBased(MethodFamily):
+    """Seabed removal, proposals, ICP of the class models, scoring, duplicate removal; no training."""
+
+    name = "model_based"
+    label = "model-based"
+    prefix = PREFIX
+    styles = {
+        "model_based_paper": {"color": "#E69F00", "linestyle": "--", "marker": "o"},
+        "model_based_ours": {"color": "#D55E00", "linestyle": "--", "marker": "D"},
+    }
+
+    def _method(self, variant: str, params: dict) -> Method:
+        return Method(name=f"{PREFIX}{variant}", family=self.name,
+                      settings={"variant": variant, "params": dict(params or {})})
+
+    def methods(self, config: dict) -> list[Method]:
+        mb = config["model_based"]
+        return [self._method(v, mb[v]) for v in mb["variants"]]
+
+    def parse(self, name: str, config: dict) -> Method | None:
+        m = re.fullmatch(rf"{PREFIX}(\w+)", name)
+        if not m or m.group(1) not in VARIANTS:
+            return None
+        return self._method(m.group(1), config["model_based"].get(m.group(1), {}))
+
+    def check(self, config: dict) -> list[str]:
+        out = []
+        for variant in VARIANTS:
+            try:
+                resolve_params(config["model_based"][variant], variant)
+            except (ValueError, TypeError) as exc:
+                out.append(f"model_based.{variant}: {exc}")
+        return out
+
+    def check_params(self, method: Method) -> None:
+        resolve_params(method.settings["params"], method.settings["variant"])
+
+    def load(self, method: Method, resources: Resources):
+        from ..detect.model_based import detect
+
+        variant, params = method.settings["variant"], method.settings["params"]
+        resolve_params(params, variant)  # unknown keys fail before any work
+        objects, templates = resources.objects, resources.templates
+
+        def detector(xyz):
+            return detect(xyz, templates, objects, params, variant)
+
+        return detector
