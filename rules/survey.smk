@@ -5,10 +5,10 @@
 #   survey_detections         merge of the tiles (each object once, by the tile owning its centre)
 #                             -> detections.{json,csv,geojson} in the survey's coordinates/CRS
 # The tiles to detect are known only once the survey is read: survey_detections asks the checkpoint's
-# tile index for them. Library: sonardet.detect.survey, sonardet.detect.tiling.
+# tile index for them. Library: sonardet.survey (split, merge, tiling, settings).
 import sys
 
-from sonardet.detect.survey import enabled_surveys, tile_ids
+from sonardet.survey import enabled_surveys, tile_ids
 
 #: Surveys to run: name -> settings (schema defaults filled in); missing files are reported here.
 SURVEYS, _survey_messages = enabled_surveys(config["surveys"])

@@ -26,7 +26,7 @@ from conftest import REAL_FILE, needs_real
 from sonardet.cli import main
 from sonardet.io.annotations import read_detections
 from sonardet.io.export import crs_urn, write_detections_csv, write_detections_geojson
-from sonardet.io.pointcloud import PointCloud, write_points
+from sonardet.io.points import PointCloud, write_points
 
 UTM = np.array([5.5e5, 4.18e6, 0.0])
 SEABED_Z = -11.5

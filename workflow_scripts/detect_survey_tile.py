@@ -10,11 +10,11 @@ import json
 from pathlib import Path
 
 from sonardet.detect.model_based import detect
-from sonardet.detect.survey import read_tile_points
 from sonardet.io.annotations import write_detections
 from sonardet.io.atomic import atomic_write_text
 from sonardet.objects import load_object
 from sonardet.sim.templates import load_templates
+from sonardet.survey import read_tile_points
 from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "detect_survey_tile") as log:  # noqa: F821

@@ -7,11 +7,11 @@ sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821
 
 import json
 
-from sonardet.seeds import derive_seed
 from sonardet.eval.noise import characterize_noise, simulated_flat_patch, to_json
 from sonardet.io.atomic import atomic_write_text
-from sonardet.io.pointcloud import read_points
+from sonardet.io.points import read_points
 from sonardet.report import plot_noise
+from sonardet.seeds import derive_seed
 from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "noise_characterization") as log:  # noqa: F821

@@ -9,9 +9,9 @@ sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821
 import json
 from pathlib import Path
 
-from sonardet.detect.survey import merge_survey_detections, read_tile_index, write_survey_detections
 from sonardet.io.annotations import read_detections
 from sonardet.io.atomic import atomic_write_text
+from sonardet.survey import merge_survey_detections, read_tile_index, write_survey_detections
 from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "survey_detections") as log:  # noqa: F821

@@ -7,8 +7,8 @@ sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821
 
 from pathlib import Path
 
-from sonardet.detect.survey import object_footprint_m, split_survey
 from sonardet.objects import load_object
+from sonardet.survey import object_footprint_m, split_survey
 from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "survey_tiles") as log:  # noqa: F821

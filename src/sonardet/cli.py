@@ -18,7 +18,7 @@ import numpy as np
 
 
 def _export_scene(args) -> int:
-    from .io.pointcloud import PointCloud, write_points
+    from .io.points import PointCloud, write_points
     from .sim.scene import load_scene_points
 
     pts = load_scene_points(args.scene)
@@ -112,11 +112,11 @@ def _run_detect(args) -> int:
 
     from .config import validate_config
     from .detect.model_based import detect, resolve_params
-    from .detect.tiling import detect_tiled, plan_tiles
+    from .survey import detect_tiled, plan_tiles
     from .io.annotations import to_builtin, validate_detections
     from .io.atomic import atomic_write_text
     from .io.export import write_detections_csv, write_detections_geojson
-    from .io.pointcloud import read_points
+    from .io.points import read_points
     from . import SCHEMA_VERSION
 
     t0 = time.perf_counter()
