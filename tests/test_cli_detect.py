@@ -39,7 +39,8 @@ def results_dir(tmp_path_factory, built_objects, default_config):
     (templates from a reduced set of views, to keep the tests fast)."""
     from sonardet.objects import save_object
     from sonardet.sim.mbes import SensorConfig
-    from sonardet.sim.templates import save_templates, scan_templates
+    from sonardet.io.templates import write_templates
+    from sonardet.sim.templates import scan_templates
 
     root = tmp_path_factory.mktemp("results")
     sensor = SensorConfig.from_dict(default_config["sensor"])
@@ -48,7 +49,7 @@ def results_dir(tmp_path_factory, built_objects, default_config):
                     root / "objects" / f"{cls}.json")
         tv = scan_templates(cls, m.mesh.vertices, m.mesh.faces, m.symmetry_order, TEMPLATE_CFG, sensor,
                             np.random.default_rng(1))
-        save_templates(root / "templates" / f"{cls}.npz", tv)
+        write_templates(root / "templates" / f"{cls}.npz", tv)
     return root
 
 

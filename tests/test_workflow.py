@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 
 from conftest import REAL_FILE, REPO, copy_workflow
+from sonardet.io.templates import read_templates
 from sonardet.objects import load_object
-from sonardet.sim.templates import load_templates
 
 pytestmark = pytest.mark.slow
 
@@ -49,7 +49,7 @@ def test_objects_well_formed(smoke_run):
 
 def test_templates_well_formed(smoke_run):
     for cls in CLASSES:
-        tv = load_templates(smoke_run / f"results/templates/{cls}.npz")
+        tv = read_templates(smoke_run / f"results/templates/{cls}.npz")
         assert tv.cls == cls and len(tv.xyz) > 100 and np.isfinite(tv.xyz).all()
         assert tv.scan_params["sensor"]["n_beams"] == 128  # from the smoke config
 
@@ -259,10 +259,10 @@ def test_rerun_is_a_no_op_and_deterministic(smoke_run):
     proc = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--configfile", "config_smoke.yaml"],
                           cwd=smoke_run, capture_output=True, text=True)
     assert proc.returncode == 0 and "Nothing to be done" in proc.stdout + proc.stderr
-    tv = load_templates(smoke_run / "results/templates/tetrapod_s.npz")
+    tv = read_templates(smoke_run / "results/templates/tetrapod_s.npz")
     subprocess.run([sys.executable, "-m", "snakemake", "--cores", "1", "--configfile", "config_smoke.yaml",
                     "--forcerun", "template_scan", "results/templates/tetrapod_s.npz"],
                    cwd=smoke_run, capture_output=True, text=True, check=True)
-    again = load_templates(smoke_run / "results/templates/tetrapod_s.npz")
+    again = read_templates(smoke_run / "results/templates/tetrapod_s.npz")
     assert np.array_equal(tv.xyz, again.xyz)
     assert len(before) > 0

@@ -5,9 +5,9 @@ import sys
 
 sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
 
+from sonardet.io.scenes import write_scene
 from sonardet.objects import load_object
 from sonardet.sim.hybrid import load_real_survey, simulate_hybrid_scene
-from sonardet.sim.scene import save_scene
 from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "simulate_scene_hybrid") as log:  # noqa: F821
@@ -19,7 +19,7 @@ with rule_logging(snakemake, "simulate_scene_hybrid") as log:  # noqa: F821
              len(survey.xyz), len(survey.pings), 1e3 * float(sorted(survey.fit_rms_m)[len(survey.pings) // 2]),
              survey.origin.tolist())
     scene = simulate_hybrid_scene(smk.wildcards.scene, cfg, objects, survey)
-    save_scene(scene, smk.output.npz, smk.output.json)
+    write_scene(scene, smk.output.npz, smk.output.json)
     m = scene.meta
     log.info("%s: %d objects (%d visible), %d objects left out (off the covered seabed), %d soundings moved "
              "onto objects, timings %s", smk.wildcards.scene, len(m["objects"]),

@@ -7,10 +7,11 @@ sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821
 
 import numpy as np
 
-from sonardet.seeds import derive_seed
+from sonardet.io.templates import write_templates
 from sonardet.objects import load_object
+from sonardet.seeds import derive_seed
 from sonardet.sim.mbes import SensorConfig
-from sonardet.sim.templates import save_templates, scan_templates
+from sonardet.sim.templates import scan_templates
 from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "template_scan") as log:  # noqa: F821
@@ -19,5 +20,5 @@ with rule_logging(snakemake, "template_scan") as log:  # noqa: F821
     rng = np.random.default_rng(derive_seed(smk.params.seed, "template", obj.cls))
     tv = scan_templates(obj.cls, obj.mesh.vertices, obj.mesh.faces, obj.symmetry_order, smk.params.templates,
                         SensorConfig.from_dict(smk.params.sensor), rng)
-    save_templates(smk.output[0], tv)
+    write_templates(smk.output[0], tv)
     log.info("%s: %d views, %d points", obj.cls, tv.n_views, len(tv.xyz))

@@ -101,17 +101,17 @@ def run_point(point: dict, scene_npzs: list[str], scene_jsons: list[str], base_p
            "fraction": point.get("fraction"), "n_scenes": len(scene_npzs), "train_time_s": None}
     if method.startswith("model_based_"):
         from .detect.model_based import detect
-        from .sim.scene import load_scene_points
-        from .sim.templates import load_templates
+        from .io.scenes import read_scene_points
+        from .io.templates import read_templates
 
         variant = method[len("model_based_"):]
         params = {**base_params, **point.get("params", {})}
         objects = {c: load_object(objects_dir / f"{c}.json") for c in classes}
-        templates = {c: load_templates(templates_dir / f"{c}.npz") for c in classes}
+        templates = {c: read_templates(templates_dir / f"{c}.npz") for c in classes}
         dets, secs = {}, []
         for i, p in enumerate(scene_npzs):
             sid = Path(p).stem
-            xyz = load_scene_points(p)["xyz"]
+            xyz = read_scene_points(p)["xyz"]
             t0 = time.perf_counter()
             dets[sid], _ = detect(xyz, templates, objects, params, variant)
             secs.append(time.perf_counter() - t0)

@@ -19,9 +19,9 @@ import numpy as np
 
 def _export_scene(args) -> int:
     from .io.points import PointCloud, write_points
-    from .sim.scene import load_scene_points
+    from .io.scenes import read_scene_points
 
-    pts = load_scene_points(args.scene)
+    pts = read_scene_points(args.scene)
     attrs = {k: np.asarray(v) for k, v in pts.items() if k != "xyz"}
     if args.out.suffix.lower() in (".las", ".laz"):
         # LAS has no int32 'label' field of its own; keep it as an extra dimension, ping/beam/line too.
@@ -45,13 +45,14 @@ def _build_objects(args) -> int:
 
 def _simulate(args) -> int:
     from .config import load_config
+    from .io.scenes import write_scene
     from .objects import load_object
-    from .sim.scene import save_scene, simulate_scene
+    from .sim.scene import simulate_scene
 
     cfg = load_config(args.config)
     objects = {c: load_object(args.objects / f"{c}.json") for c in cfg["classes"]}
     scene = simulate_scene(args.scene, cfg, objects)
-    save_scene(scene, args.out / f"{args.scene}.npz", args.out / f"{args.scene}.json")
+    write_scene(scene, args.out / f"{args.scene}.npz", args.out / f"{args.scene}.json")
     print(json.dumps({k: scene.meta[k] for k in ("stats", "timings_s", "survey")}, indent=1))
     return 0
 
@@ -59,8 +60,8 @@ def _simulate(args) -> int:
 def _detect_inputs(results: Path, classes: list[str]):
     """Object models and template scans of `classes` from a results folder; a missing file is a
     FileNotFoundError naming it and the Snakemake target that builds it."""
+    from .io.templates import read_templates
     from .objects import load_object
-    from .sim.templates import load_templates
 
     objects, templates = {}, {}
     for cls in classes:
@@ -73,7 +74,7 @@ def _detect_inputs(results: Path, classes: list[str]):
                     f"workflow folder, point --results at a folder holding objects/ and templates/, or leave "
                     f"the class out with --classes")
         objects[cls] = load_object(results / "objects" / f"{cls}.json")
-        templates[cls] = load_templates(results / "templates" / f"{cls}.npz")
+        templates[cls] = read_templates(results / "templates" / f"{cls}.npz")
     return objects, templates
 
 

@@ -28,9 +28,9 @@ def _points(scene_npz) -> dict:
         return scene_npz
     if isinstance(scene_npz, np.ndarray):
         return {"xyz": np.asarray(scene_npz, dtype=np.float64)}
-    from ..sim.scene import load_scene_points
+    from ..io.scenes import read_scene_points
 
-    return load_scene_points(scene_npz)
+    return read_scene_points(scene_npz)
 
 
 def detection_list(source) -> list[dict]:
