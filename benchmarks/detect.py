@@ -26,13 +26,13 @@ import numpy as np
 from sonardet.detect.model_based import detect
 from sonardet.io.scenes import read_scene_points
 from sonardet.io.templates import read_templates
-from sonardet.objects import load_object
+from sonardet.objects import read_object
 
 
-def load_inputs(results: Path):
+def read_inputs(results: Path):
     """Templates and objects of every class found under results/objects and results/templates."""
     classes = sorted(p.stem for p in (results / "objects").glob("*.json"))
-    objects = {c: load_object(results / "objects" / f"{c}.json") for c in classes}
+    objects = {c: read_object(results / "objects" / f"{c}.json") for c in classes}
     templates = {c: read_templates(results / "templates" / f"{c}.npz") for c in classes}
     return classes, objects, templates
 
@@ -68,7 +68,7 @@ def main():
     ids = (results / "splits" / f"{args.split}.txt").read_text().split()
     if args.scenes > 0:
         ids = ids[: args.scenes]
-    classes, objects, templates = load_inputs(results)
+    classes, objects, templates = read_inputs(results)
     params = {"ours": json.loads(args.params_ours), "paper": json.loads(args.params_paper)}
     print(f"{len(ids)} scene(s) of split '{args.split}', classes {classes}, "
           f"{os.cpu_count()} CPU(s) visible, affinity {len(os.sched_getaffinity(0))} core(s)")

@@ -15,7 +15,7 @@ from sonardet.sim.hybrid import (
     RealSurvey,
     estimate_sensor_positions,
     implant,
-    load_real_survey,
+    read_real_survey,
     read_soundings,
     seabed_grid,
     simulate_hybrid_scene,
@@ -123,7 +123,7 @@ def test_seabed_grid_covers_the_soundings_only():
 def real_survey():
     if REAL_DIR is None:
         pytest.skip("real survey data not available")
-    return load_real_survey(REAL_DIR / "r2sonic_sfbay_soundings.csv.gz", "EPSG:32610")
+    return read_real_survey(REAL_DIR / "r2sonic_sfbay_soundings.csv.gz", "EPSG:32610")
 
 
 @needs_real

@@ -11,7 +11,7 @@ import pytest
 
 from conftest import REAL_FILE, REPO, copy_workflow
 from sonardet.io.templates import read_templates
-from sonardet.objects import load_object
+from sonardet.objects import read_object
 
 pytestmark = pytest.mark.slow
 
@@ -41,7 +41,7 @@ def test_objects_well_formed(smoke_run):
     for cls in CLASSES:
         meta = json.loads((smoke_run / f"results/objects/{cls}.json").read_text())
         assert meta["watertight"] and meta["cls"] == cls
-        info = load_object(smoke_run / f"results/objects/{cls}.json")
+        info = read_object(smoke_run / f"results/objects/{cls}.json")
         assert info.mesh.is_watertight
         assert (smoke_run / f"results/logs/object_mesh/{cls}.log").exists()
         assert (smoke_run / f"results/benchmarks/object_mesh/{cls}.tsv").exists()

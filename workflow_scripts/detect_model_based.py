@@ -13,13 +13,13 @@ from sonardet.io.annotations import write_detections
 from sonardet.io.atomic import atomic_write_text
 from sonardet.io.scenes import read_scene_points
 from sonardet.io.templates import read_templates
-from sonardet.objects import load_object
+from sonardet.objects import read_object
 from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "detect_model_based") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     variant, scene = smk.wildcards.variant, smk.wildcards.scene
-    objects = {Path(p).stem: load_object(p) for p in smk.input.meta}
+    objects = {Path(p).stem: read_object(p) for p in smk.input.meta}
     templates = {Path(p).stem: read_templates(p) for p in smk.input.templates}
     xyz = read_scene_points(smk.input.npz)["xyz"]
     dets, stats = detect(xyz, templates, objects, smk.params.detector, variant)

@@ -13,14 +13,14 @@ from sonardet.detect.model_based import detect
 from sonardet.io.annotations import write_detections
 from sonardet.io.atomic import atomic_write_text
 from sonardet.io.templates import read_templates
-from sonardet.objects import load_object
+from sonardet.objects import read_object
 from sonardet.survey import read_tile_points
 from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "detect_survey_tile") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     survey, tile, variant = smk.wildcards.survey, smk.wildcards.tile, smk.params.variant
-    objects = {Path(p).stem: load_object(p) for p in smk.input.meta}
+    objects = {Path(p).stem: read_object(p) for p in smk.input.meta}
     templates = {Path(p).stem: read_templates(p) for p in smk.input.templates}
     cloud = read_tile_points(smk.input.npz)
     log.info("%s %s: %d points (CRS %s)", survey, tile, len(cloud.xyz), cloud.crs)

@@ -6,15 +6,15 @@ import sys
 sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
 
 from sonardet.io.scenes import write_scene
-from sonardet.objects import load_object
-from sonardet.sim.hybrid import load_real_survey, simulate_hybrid_scene
+from sonardet.objects import read_object
+from sonardet.sim.hybrid import read_real_survey, simulate_hybrid_scene
 from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "simulate_scene_hybrid") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     cfg = smk.params.config
-    objects = {os.path.basename(p)[: -len(".json")]: load_object(p) for p in smk.input.meta}
-    survey = load_real_survey(smk.input.soundings, cfg["hybrid_test"]["crs"])
+    objects = {os.path.basename(p)[: -len(".json")]: read_object(p) for p in smk.input.meta}
+    survey = read_real_survey(smk.input.soundings, cfg["hybrid_test"]["crs"])
     log.info("%s: %d soundings, %d pings, transducer fit rms %.1f mm (median), origin %s", smk.input.soundings,
              len(survey.xyz), len(survey.pings), 1e3 * float(sorted(survey.fit_rms_m)[len(survey.pings) // 2]),
              survey.origin.tolist())

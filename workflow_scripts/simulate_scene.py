@@ -6,14 +6,14 @@ import sys
 sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821  library without install
 
 from sonardet.io.scenes import write_scene
-from sonardet.objects import load_object
+from sonardet.objects import read_object
 from sonardet.sim.scene import simulate_scene
 from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "simulate_scene") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     cfg = smk.params.config
-    objects = {os.path.basename(p)[: -len(".json")]: load_object(p) for p in smk.input.meta}
+    objects = {os.path.basename(p)[: -len(".json")]: read_object(p) for p in smk.input.meta}
     scene = simulate_scene(smk.wildcards.scene, cfg, objects)
     write_scene(scene, smk.output.npz, smk.output.json)
     m = scene.meta

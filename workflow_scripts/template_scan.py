@@ -8,7 +8,7 @@ sys.path.insert(0, os.path.join(snakemake.scriptdir, "..", "src"))  # noqa: F821
 import numpy as np
 
 from sonardet.io.templates import write_templates
-from sonardet.objects import load_object
+from sonardet.objects import read_object
 from sonardet.seeds import derive_seed
 from sonardet.sim.mbes import SensorConfig
 from sonardet.sim.templates import scan_templates
@@ -16,7 +16,7 @@ from sonardet.workflow import rule_logging
 
 with rule_logging(snakemake, "template_scan") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
-    obj = load_object(smk.input.json, smk.input.ply)
+    obj = read_object(smk.input.json, smk.input.ply)
     rng = np.random.default_rng(derive_seed(smk.params.seed, "template", obj.cls))
     tv = scan_templates(obj.cls, obj.mesh.vertices, obj.mesh.faces, obj.symmetry_order, smk.params.templates,
                         SensorConfig.from_dict(smk.params.sensor), rng)

@@ -91,7 +91,7 @@ def run_point(point: dict, scene_npzs: list[str], scene_jsons: list[str], base_p
     seconds_per_scene is its inference time per scene. Returns {name, method, params, fraction,
     mAP, AP, n_pred, n_gt, seconds_per_scene, seconds_per_scene_max, train_time_s, n_scenes}.
     """
-    from .objects import load_object
+    from .objects import read_object
 
     method = point["method"]
     objects_dir, templates_dir, work_dir = Path(objects_dir), Path(templates_dir), Path(work_dir)
@@ -106,7 +106,7 @@ def run_point(point: dict, scene_npzs: list[str], scene_jsons: list[str], base_p
 
         variant = method[len("model_based_"):]
         params = {**base_params, **point.get("params", {})}
-        objects = {c: load_object(objects_dir / f"{c}.json") for c in classes}
+        objects = {c: read_object(objects_dir / f"{c}.json") for c in classes}
         templates = {c: read_templates(templates_dir / f"{c}.npz") for c in classes}
         dets, secs = {}, []
         for i, p in enumerate(scene_npzs):

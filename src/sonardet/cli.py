@@ -33,11 +33,11 @@ def _export_scene(args) -> int:
 
 def _build_objects(args) -> int:
     from .config import load_config
-    from .objects import build_object, save_object
+    from .objects import build_object, write_object
 
     cfg = load_config(args.config)
     for cls in cfg["classes"]:
-        meta = save_object(build_object(cls, cfg["objects"]), cfg["objects"]["density_kg_m3"],
+        meta = write_object(build_object(cls, cfg["objects"]), cfg["objects"]["density_kg_m3"],
                            args.out / f"{cls}.ply", args.out / f"{cls}.json")
         print(f"{cls}: height {meta['height_m']:.3f} m, volume {meta['volume_m3']:.4f} m^3, mass {meta['mass_kg']:.0f} kg")
     return 0
@@ -46,11 +46,11 @@ def _build_objects(args) -> int:
 def _simulate(args) -> int:
     from .config import load_config
     from .io.scenes import write_scene
-    from .objects import load_object
+    from .objects import read_object
     from .sim.scene import simulate_scene
 
     cfg = load_config(args.config)
-    objects = {c: load_object(args.objects / f"{c}.json") for c in cfg["classes"]}
+    objects = {c: read_object(args.objects / f"{c}.json") for c in cfg["classes"]}
     scene = simulate_scene(args.scene, cfg, objects)
     write_scene(scene, args.out / f"{args.scene}.npz", args.out / f"{args.scene}.json")
     print(json.dumps({k: scene.meta[k] for k in ("stats", "timings_s", "survey")}, indent=1))
@@ -61,7 +61,7 @@ def _detect_inputs(results: Path, classes: list[str]):
     """Object models and template scans of `classes` from a results folder; a missing file is a
     FileNotFoundError naming it and the Snakemake target that builds it."""
     from .io.templates import read_templates
-    from .objects import load_object
+    from .objects import read_object
 
     objects, templates = {}, {}
     for cls in classes:
@@ -73,7 +73,7 @@ def _detect_inputs(results: Path, classes: list[str]):
                     f"{f}: missing (class {cls!r}); build it with `snakemake --cores 2 {target}` in the "
                     f"workflow folder, point --results at a folder holding objects/ and templates/, or leave "
                     f"the class out with --classes")
-        objects[cls] = load_object(results / "objects" / f"{cls}.json")
+        objects[cls] = read_object(results / "objects" / f"{cls}.json")
         templates[cls] = read_templates(results / "templates" / f"{cls}.npz")
     return objects, templates
 

@@ -1,6 +1,6 @@
 """Procedural meshes of the reef element classes and their metadata."""
 
-from .catalog import ObjectInfo, canonical_box, load_object, metadata, save_object
+from .catalog import ObjectInfo, canonical_box, metadata, read_object, write_object
 from .meshes import KNOWN_CLASSES, SYMMETRY_CONTINUOUS, ObjectModel, build_object
 
 __all__ = [
@@ -10,7 +10,7 @@ __all__ = [
     "ObjectModel",
     "build_object",
     "canonical_box",
-    "load_object",
     "metadata",
-    "save_object",
+    "read_object",
+    "write_object",
 ]

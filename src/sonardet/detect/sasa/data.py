@@ -716,6 +716,6 @@ def collate(items: list[tuple], device) -> dict:
     }
 
 
-def load_json(path) -> dict:
+def read_json(path) -> dict:
     """Small helper: read a JSON file."""
     return json.loads(Path(path).read_text(encoding="utf-8"))
