@@ -24,16 +24,16 @@ from pathlib import Path
 import numpy as np
 
 from sonardet.detect.model_based import detect
-from sonardet.objects import load_object
-from sonardet.sim.scene import load_scene_points
-from sonardet.sim.templates import load_templates
+from sonardet.io.scenes import read_scene_points
+from sonardet.io.templates import read_templates
+from sonardet.objects import read_object
 
 
-def load_inputs(results: Path):
+def read_inputs(results: Path):
     """Templates and objects of every class found under results/objects and results/templates."""
     classes = sorted(p.stem for p in (results / "objects").glob("*.json"))
-    objects = {c: load_object(results / "objects" / f"{c}.json") for c in classes}
-    templates = {c: load_templates(results / "templates" / f"{c}.npz") for c in classes}
+    objects = {c: read_object(results / "objects" / f"{c}.json") for c in classes}
+    templates = {c: read_templates(results / "templates" / f"{c}.npz") for c in classes}
     return classes, objects, templates
 
 
@@ -68,7 +68,7 @@ def main():
     ids = (results / "splits" / f"{args.split}.txt").read_text().split()
     if args.scenes > 0:
         ids = ids[: args.scenes]
-    classes, objects, templates = load_inputs(results)
+    classes, objects, templates = read_inputs(results)
     params = {"ours": json.loads(args.params_ours), "paper": json.loads(args.params_paper)}
     print(f"{len(ids)} scene(s) of split '{args.split}', classes {classes}, "
           f"{os.cpu_count()} CPU(s) visible, affinity {len(os.sched_getaffinity(0))} core(s)")
@@ -77,7 +77,7 @@ def main():
     for sid in ids:
         meta = json.loads((results / "scenes" / f"{sid}.json").read_text())
         gt[sid] = [{"cls": o["cls"], "box": o["box"], "visible": o.get("visible", True)} for o in meta["objects"]]
-        points[sid] = load_scene_points(results / "scenes" / f"{sid}.npz")["xyz"]
+        points[sid] = read_scene_points(results / "scenes" / f"{sid}.npz")["xyz"]
     out = {"scenes": ids, "variants": {}}
     for variant in args.variants.split(","):
         rows, dets = [], {}

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from sonardet.io.pointcloud import read_points
+from sonardet.io.points import read_points
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "r2sonic_sfbay.xyz.gz"
 

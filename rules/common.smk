@@ -19,7 +19,7 @@ from sonardet.config import (
     validate_config,
 )
 from sonardet.experiments.ablation import point_method
-from sonardet.detect.survey import enabled_surveys, tile_ids
+from sonardet.survey import enabled_surveys, tile_ids
 from sonardet.sim.dataset import make_splits, scene_ids, split_names
 
 try:

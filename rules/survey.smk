@@ -5,7 +5,7 @@
 #   survey_detections         merge of the tiles (each object once, by the tile owning its centre)
 #                             -> detections.{json,csv,geojson} in the survey's coordinates/CRS
 # The tiles to detect are known only once the survey is read: survey_detections asks the checkpoint's
-# tile index for them. Library: sonardet.detect.survey, sonardet.detect.tiling.
+# tile index for them. Library: sonardet.survey (split, merge, tiling, settings).
 wildcard_constraints:
     survey="|".join(SURVEYS) or "(?!)",
     tile=r"t[0-9]+_[0-9]+",

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sonardet.cli import main
-from sonardet.io.pointcloud import read_points
+from sonardet.io.points import read_points
 
 
 @pytest.fixture

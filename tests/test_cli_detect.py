@@ -26,7 +26,7 @@ from conftest import REAL_FILE, needs_real
 from sonardet.cli import main
 from sonardet.io.annotations import read_detections
 from sonardet.io.export import crs_urn, write_detections_csv, write_detections_geojson
-from sonardet.io.pointcloud import PointCloud, write_points
+from sonardet.io.points import PointCloud, write_points
 
 UTM = np.array([5.5e5, 4.18e6, 0.0])
 SEABED_Z = -11.5
@@ -37,18 +37,19 @@ TEMPLATE_CFG = {"yaw_deg": [0, 60], "directions": ["x", "y"], "offsets_m": [-7.5
 def results_dir(tmp_path_factory, built_objects, default_config):
     """A results folder as the workflow writes it: objects/{cls}.json|.ply and templates/{cls}.npz
     (templates from a reduced set of views, to keep the tests fast)."""
-    from sonardet.objects import save_object
+    from sonardet.objects import write_object
     from sonardet.sim.mbes import SensorConfig
-    from sonardet.sim.templates import save_templates, scan_templates
+    from sonardet.io.templates import write_templates
+    from sonardet.sim.templates import scan_templates
 
     root = tmp_path_factory.mktemp("results")
     sensor = SensorConfig.from_dict(default_config["sensor"])
     for cls, m in built_objects.items():
-        save_object(m, default_config["objects"]["density_kg_m3"], root / "objects" / f"{cls}.ply",
+        write_object(m, default_config["objects"]["density_kg_m3"], root / "objects" / f"{cls}.ply",
                     root / "objects" / f"{cls}.json")
         tv = scan_templates(cls, m.mesh.vertices, m.mesh.faces, m.symmetry_order, TEMPLATE_CFG, sensor,
                             np.random.default_rng(1))
-        save_templates(root / "templates" / f"{cls}.npz", tv)
+        write_templates(root / "templates" / f"{cls}.npz", tv)
     return root
 
 

@@ -15,13 +15,13 @@ from sonardet.sim.hybrid import (
     RealSurvey,
     estimate_sensor_positions,
     implant,
-    load_real_survey,
+    read_real_survey,
     read_soundings,
     seabed_grid,
     simulate_hybrid_scene,
 )
+from sonardet.io.scenes import write_scene
 from sonardet.sim.mbes import RaycastTarget, SensorConfig, scan, straight_line
-from sonardet.sim.scene import save_scene
 from test_scene import _objects
 
 
@@ -123,7 +123,7 @@ def test_seabed_grid_covers_the_soundings_only():
 def real_survey():
     if REAL_DIR is None:
         pytest.skip("real survey data not available")
-    return load_real_survey(REAL_DIR / "r2sonic_sfbay_soundings.csv.gz", "EPSG:32610")
+    return read_real_survey(REAL_DIR / "r2sonic_sfbay_soundings.csv.gz", "EPSG:32610")
 
 
 @needs_real
@@ -162,8 +162,8 @@ def test_real_hybrid_scene(real_survey, tmp_path):
             assert pts[:, 2].min() - ground < 0.5, o
     # Same config and survey: the same bytes.
     again = simulate_hybrid_scene("s0000", cfg, objs, real_survey)
-    save_scene(sc, tmp_path / "a.npz", tmp_path / "a.json")
-    save_scene(again, tmp_path / "b.npz", tmp_path / "b.json")
+    write_scene(sc, tmp_path / "a.npz", tmp_path / "a.json")
+    write_scene(again, tmp_path / "b.npz", tmp_path / "b.json")
     assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
     ja = json.loads((tmp_path / "a.json").read_text())
     assert ja["hybrid"]["origin"] == [554808.0, 4178987.0, 0.0] and ja["hybrid"]["crs"] == "EPSG:32610"

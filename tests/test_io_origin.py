@@ -20,7 +20,7 @@ from sonardet.io.origin import (
     to_local,
 )
 from conftest import REAL_FILE, needs_real
-from sonardet.io.pointcloud import PointCloud, read_points
+from sonardet.io.points import PointCloud, read_points
 
 
 REAL = REAL_FILE

@@ -1,4 +1,4 @@
-"""Tests for sonardet.io.pointcloud (with its text/las/ply back ends): round trips at UTM scale,
+"""Tests for sonardet.io.points (the format table and its text/las/ply/npz modules): round trips at UTM scale,
 the real R2Sonic survey line, and every bad input named in the design (wrong column count, NaN,
 empty files, LAS without points, unknown suffix, reordered headers)."""
 
@@ -18,11 +18,14 @@ from hypothesis import strategies as st
 
 from sonardet.io.origin import GlobalCoordinatesError
 from conftest import REAL_DIR, needs_real
-from sonardet.io.pointcloud import (
+from sonardet.io.points import (
+    FORMAT_TABLE,
     SUPPORTED_SUFFIXES,
     PointCloud,
     PointCloudError,
     UnsupportedFormatError,
+    format_module,
+    iter_chunks,
     point_format,
     read_points,
     write_points,
@@ -82,6 +85,39 @@ def test_round_trip_every_format_at_utm_scale(tmp_path, suffix):
     if suffix in KEEPS_CRS:
         np.testing.assert_array_equal(back.origin, cloud.origin)
     assert os.listdir(tmp_path) == [path.name]  # no temporary file left behind
+
+
+@pytest.mark.parametrize("suffix", ALL_FORMATS)
+def test_chunks_are_the_points_read_points_gives(tmp_path, suffix):
+    cloud = scene_cloud(n=1000)
+    path = write_points(tmp_path / f"scene{suffix}", cloud)
+    crs = None if suffix in KEEPS_CRS else "epsg:32610"
+    whole = read_points(path, crs=crs)
+    chunks = list(iter_chunks(path, crs=crs, chunk_points=333))
+    assert [len(c) for c in chunks] == [333, 333, 333, 1]
+    np.testing.assert_array_equal(np.concatenate([c.xyz for c in chunks]), whole.xyz)
+    for c in chunks:
+        assert isinstance(c, PointCloud) and c.xyz.dtype == np.float64 and c.attributes == {}
+        assert c.crs == "EPSG:32610" and c.source == str(path)
+        if whole.origin is None:
+            assert c.origin is None
+        else:
+            np.testing.assert_array_equal(c.origin, whole.origin)
+    assert format_module(path).STREAMED == (suffix not in (".ply", ".npz"))
+
+
+def test_format_table_maps_every_suffix_to_a_complete_format_module(tmp_path):
+    assert tuple(FORMAT_TABLE) == SUPPORTED_SUFFIXES
+    for suffix, module in FORMAT_TABLE.items():
+        assert suffix in module.SUFFIXES and point_format(f"a{suffix.upper()}") == module.NAME
+        for name in ("read", "write", "iter_chunks", "STREAMED", "READ_OPTIONS", "WRITE_OPTIONS"):
+            assert hasattr(module, name), (module.__name__, name)
+    with pytest.raises(ValueError, match="chunk_points must be >= 1"):
+        iter_chunks(write_points(tmp_path / "a.xyz", scene_cloud()), chunk_points=0)
+    with pytest.raises(FileNotFoundError):
+        iter_chunks(tmp_path / "nope.las")
+    with pytest.raises(UnsupportedFormatError):
+        iter_chunks(tmp_path / "a.e57")
 
 
 def test_text_writer_without_attributes_writes_bare_xyz_lines(tmp_path):
@@ -445,13 +481,13 @@ def test_las_crs_from_geotiff_keys_and_other_crs_fallback(tmp_path):
     ids=["wkt1", "wkt1-axis-last", "wkt2", "custom"],
 )
 def test_crs_from_wkt_takes_the_outermost_authority(wkt, expected):
-    from sonardet.io.las import _crs_from_wkt
+    from sonardet.io.points.las import _crs_from_wkt
 
     assert _crs_from_wkt(wkt) == (expected or wkt)
 
 
 def test_utm_wkt_for_both_hemispheres():
-    from sonardet.io.las import utm_wkt
+    from sonardet.io.points.las import utm_wkt
 
     south = utm_wkt("EPSG:32733")
     assert '"WGS 84 / UTM zone 33S"' in south and '"central_meridian",15]' in south
@@ -556,7 +592,7 @@ def test_failed_write_leaves_no_partial_file_and_keeps_the_old_one(tmp_path, mon
                     boom()
                 return self.fh.write(data)
 
-        monkeypatch.setattr("sonardet.io.ply.open", HalfWritten, raising=False)
+        monkeypatch.setattr("sonardet.io.points.ply.open", HalfWritten, raising=False)
     else:
         monkeypatch.setattr(laspy.LasData, "write", boom)
     with pytest.raises(RuntimeError, match="disk full"):

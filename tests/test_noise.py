@@ -184,7 +184,7 @@ def test_skewtest_is_none_when_too_few_points_are_kept():
 
 @pytest.fixture(scope="module")
 def real_xyz() -> np.ndarray:
-    from sonardet.io.pointcloud import read_points
+    from sonardet.io.points import read_points
 
     return read_points(REAL_FILE).xyz
 

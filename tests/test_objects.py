@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sonardet.geometry import quat_from_yaw, quat_multiply, random_quat
-from sonardet.objects import build_object, canonical_box, load_object, save_object
+from sonardet.objects import build_object, canonical_box, read_object, write_object
 from sonardet.objects.meshes import tetrapod_leg_directions
 
 SPEC_HEIGHT = {"tetrapod_s": 1.42, "tetrapod_b": 2.08, "reef_cone": 1.37, "reef_ring": 0.75}
@@ -97,8 +97,8 @@ def test_canonical_box_independent_of_symmetric_pose(built_objects):
 
 def test_save_load_round_trip(tmp_path, built_objects):
     m = built_objects["tetrapod_s"]
-    meta = save_object(m, 2400, tmp_path / "t.ply", tmp_path / "t.json")
-    info = load_object(tmp_path / "t.json")
+    meta = write_object(m, 2400, tmp_path / "t.ply", tmp_path / "t.json")
+    info = read_object(tmp_path / "t.json")
     assert info.cls == "tetrapod_s" and info.symmetry_order == 3
     assert np.isclose(info.mass_kg, meta["mass_kg"])
     assert len(info.mesh.faces) == meta["n_faces"]
@@ -109,4 +109,4 @@ def test_save_load_round_trip(tmp_path, built_objects):
     bad["schema_version"] = 99
     (tmp_path / "t.json").write_text(json.dumps(bad))
     with pytest.raises(ValueError, match="schema_version"):
-        load_object(tmp_path / "t.json")
+        read_object(tmp_path / "t.json")

@@ -156,15 +156,15 @@ def test_fifth_class_by_one_spec(tmp_path):
 
 
 def test_object_files_carry_the_spec(tmp_path, built_objects):
-    from sonardet.objects import load_object, save_object
+    from sonardet.objects import read_object, write_object
 
     m = built_objects["tetrapod_s"]
-    save_object(m, 2400.0, tmp_path / "t.ply", tmp_path / "t.json")
-    info = load_object(tmp_path / "t.json")
+    write_object(m, 2400.0, tmp_path / "t.ply", tmp_path / "t.json")
+    info = read_object(tmp_path / "t.json")
     assert info.up_axes.shape == (4, 3) and np.allclose(info.up_axes[0], [0, 0, 1])
     assert info.tumble["mode"] == "tilts" and info.tumble["tilts_deg"] == [30.0, 55.0]
     doc = json.loads((tmp_path / "t.json").read_text())
     del doc["up_axes"]
     (tmp_path / "t.json").write_text(json.dumps(doc))
     with pytest.raises(ValueError, match="no up_axes.*rebuild it"):
-        load_object(tmp_path / "t.json")
+        read_object(tmp_path / "t.json")

@@ -418,12 +418,12 @@ def test_results_readme_links_and_machine(run, tmp_path):
 
 
 def test_load_metrics_rejects_foreign_files(tmp_path):
-    from sonardet.report import load_metrics
+    from sonardet.report import read_metrics
 
     p = tmp_path / "metrics.json"
     p.write_text(json.dumps({"schema_version": SCHEMA_VERSION, "mAP_headline": 0.5}))
     with pytest.raises(ValueError, match="missing key"):
-        load_metrics(p)
+        read_metrics(p)
     p.write_text(json.dumps({"schema_version": 999}))
     with pytest.raises(ValueError, match="schema_version"):
-        load_metrics(p)
+        read_metrics(p)

@@ -8,11 +8,12 @@ import pytest
 
 from sonardet.config import ConfigError, validate_config
 from sonardet.geometry import points_in_box, quat_to_matrix
+from sonardet.io.scenes import read_scene_points, write_scene
 from sonardet.objects import build_object
 from sonardet.objects import object_info
 from sonardet.sim.dataset import dataset_stats, make_splits, scene_ids
 from sonardet.sim.mbes import SensorConfig, beam_angles
-from sonardet.sim.scene import load_scene_points, save_scene, simulate_scene
+from sonardet.sim.scene import simulate_scene
 
 SMALL = {
     "seed": 11,
@@ -44,8 +45,8 @@ def small():
 def test_same_seed_same_bytes(small, tmp_path):
     cfg, objs, scene = small
     again = simulate_scene("s0001", cfg, objs)
-    save_scene(scene, tmp_path / "a.npz", tmp_path / "a.json")
-    save_scene(again, tmp_path / "b.npz", tmp_path / "b.json")
+    write_scene(scene, tmp_path / "a.npz", tmp_path / "a.json")
+    write_scene(again, tmp_path / "b.npz", tmp_path / "b.json")
     assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
     ja, jb = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
     ja.pop("timings_s"), jb.pop("timings_s")
@@ -95,8 +96,8 @@ def test_visible_annotations_have_their_points_in_their_box(small):
 
 def test_scene_contract(small, tmp_path):
     _, _, scene = small
-    save_scene(scene, tmp_path / "s.npz", tmp_path / "s.json")
-    pts = load_scene_points(tmp_path / "s.npz")
+    write_scene(scene, tmp_path / "s.npz", tmp_path / "s.json")
+    pts = read_scene_points(tmp_path / "s.npz")
     assert pts["xyz"].dtype == np.float64 and pts["label"].dtype == np.int32
     meta = json.loads((tmp_path / "s.json").read_text())
     assert meta["schema_version"] == 1 and meta["scene"] == "s0001"

@@ -1,4 +1,4 @@
-"""Surveys as one Snakemake job per tile (rules/survey.smk, sonardet.detect.survey).
+"""Surveys as one Snakemake job per tile (rules/survey.smk, sonardet.survey).
 
 Unit tests of the library (streaming split, tile index, merge, outputs) and one real `snakemake --cores 2`
 run on a synthetic survey larger than a tile. Hard cases named in the tests: UTM offsets (5.5e5, 4.18e6)
@@ -23,12 +23,12 @@ import pytest
 from conftest import REPO, copy_workflow, match_by_centre
 
 from sonardet.config import ConfigError, validate_config
-from sonardet.detect.survey import (enabled_surveys, merge_survey_detections, object_footprint_m, open_survey,
-                                    read_tile_index, read_tile_points, split_survey, survey_settings, tile_ids,
-                                    write_survey_detections)
-from sonardet.detect.tiling import detect_tiled, merge_tile_detections, plan_tiles
 from sonardet.io.annotations import read_detections
-from sonardet.io.pointcloud import PointCloud, PointCloudError, read_points, write_points
+from sonardet.io.points import PointCloud, PointCloudError, read_points, write_points
+from sonardet.survey import (enabled_surveys, merge_survey_detections, object_footprint_m, open_survey,
+                             read_tile_index, read_tile_points, split_survey, survey_settings, tile_ids,
+                             write_survey_detections)
+from sonardet.survey.tiling import detect_tiled, merge_tile_detections, plan_tiles
 
 UTM = np.array([5.5e5, 4.18e6, 0.0])
 
@@ -87,6 +87,20 @@ def test_survey_settings_take_the_schema_defaults():
     assert (args.tile_m, args.overlap_m) == (s["tile_m"], s["overlap_m"])
     with pytest.raises(ValueError, match="surveys.x: needs `path`"):
         survey_settings("x", {})
+
+
+def test_survey_defaults_are_the_schema_defaults():
+    """The survey package keeps its defaults as a constant (it may not import the config layer): they
+    must be those the config schema states for a `surveys` entry."""
+    from sonardet.config import load_schema
+    from sonardet.survey import SURVEY_DEFAULTS, survey_defaults
+
+    props = load_schema()["properties"]["surveys"]["additionalProperties"]["properties"]
+    schema = {k: v["default"] for k, v in props.items() if "default" in v}
+    assert SURVEY_DEFAULTS == schema and survey_defaults() == schema
+    assert all(type(SURVEY_DEFAULTS[k]) is type(v) for k, v in schema.items())
+    survey_defaults()["tile_m"] = 1.0  # a copy: the constant is not changed through it
+    assert SURVEY_DEFAULTS["tile_m"] == schema["tile_m"]
 
 
 def test_default_config_runs_the_real_line():

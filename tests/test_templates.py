@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 import open3d as o3d
 
+from sonardet.io.templates import read_templates, write_templates
 from sonardet.sim.mbes import SensorConfig
-from sonardet.sim.templates import load_templates, save_templates, scan_templates
+from sonardet.sim.templates import scan_templates
 
 CFG = {"yaw_deg": [0, 30, 60, 90, 150], "directions": ["x", "y"], "offsets_m": [-10, 0, 10], "altitude_m": 11.5}
 
@@ -53,8 +54,8 @@ def test_save_load_round_trip(tmp_path, built_objects):
     m = built_objects["reef_cone"]
     tv = scan_templates("reef_cone", m.mesh.vertices, m.mesh.faces, 0, CFG, SensorConfig(n_beams=64),
                         np.random.default_rng(1))
-    save_templates(tmp_path / "c.npz", tv)
-    back = load_templates(tmp_path / "c.npz")
+    write_templates(tmp_path / "c.npz", tv)
+    back = read_templates(tmp_path / "c.npz")
     assert back.cls == "reef_cone" and np.array_equal(back.xyz, tv.xyz)
     assert back.scan_params["sensor"]["n_beams"] == 64
     assert list(back.direction) == list(tv.direction)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from conftest import match_by_centre
 
-from sonardet.detect.tiling import detect_tiled, merge_tile_detections, plan_tiles, tile_points
+from sonardet.survey.tiling import detect_tiled, merge_tile_detections, plan_tiles, tile_points
 
 UTM = np.array([5.5e5, 4.18e6, 0.0])
 
@@ -203,7 +203,7 @@ def test_detect_tiled_feeds_each_tile_its_points_and_skips_empty_tiles(caplog):
         return [_det("reef_cone", c[0], c[1], float(len(points)), z=c[2])], {"n": len(points)}
 
     tiles = plan_tiles((*xyz[:, :2].min(0), *xyz[:, :2].max(0)), 40.0, 3.0)
-    with caplog.at_level(logging.INFO, logger="sonardet.detect.tiling"):
+    with caplog.at_level(logging.INFO, logger="sonardet.survey.tiling"):
         dets, rows = detect_tiled(xyz, fake_detect, 40.0, 3.0)
     assert len(rows) == len(tiles) == 4
     assert [r["skipped"] for r in rows] == [False, True, True, False]

@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 
 from conftest import REAL_FILE, REPO, copy_workflow
-from sonardet.objects import load_object
-from sonardet.sim.templates import load_templates
+from sonardet.io.templates import read_templates
+from sonardet.objects import read_object
 
 pytestmark = pytest.mark.slow
 
@@ -42,7 +42,7 @@ def test_objects_well_formed(smoke_run):
     for cls in CLASSES:
         meta = json.loads((smoke_run / f"results/objects/{cls}.json").read_text())
         assert meta["watertight"] and meta["cls"] == cls
-        info = load_object(smoke_run / f"results/objects/{cls}.json")
+        info = read_object(smoke_run / f"results/objects/{cls}.json")
         assert info.mesh.is_watertight
         assert (smoke_run / f"results/logs/object_mesh/{cls}.log").exists()
         assert (smoke_run / f"results/benchmarks/object_mesh/{cls}.tsv").exists()
@@ -50,7 +50,7 @@ def test_objects_well_formed(smoke_run):
 
 def test_templates_well_formed(smoke_run):
     for cls in CLASSES:
-        tv = load_templates(smoke_run / f"results/templates/{cls}.npz")
+        tv = read_templates(smoke_run / f"results/templates/{cls}.npz")
         assert tv.cls == cls and len(tv.xyz) > 100 and np.isfinite(tv.xyz).all()
         assert tv.scan_params["sensor"]["n_beams"] == 128  # from the smoke config
 
@@ -238,7 +238,7 @@ def test_fifth_class_from_a_plugin(smoke_run):
     scanned, placed in scenes, detected by every method and evaluated."""
     meta = json.loads((smoke_run / "results/objects/concrete_cube.json").read_text())
     assert meta["symmetry_order"] == 4 and abs(meta["volume_m3"] - 1.728) < 1e-6 and len(meta["up_axes"]) == 6
-    tv = load_templates(smoke_run / "results/templates/concrete_cube.npz")
+    tv = read_templates(smoke_run / "results/templates/concrete_cube.npz")
     assert len(tv.xyz) > 100
     cubes = [o for p in (smoke_run / "results/scenes").glob("*.json")
              for o in json.loads(p.read_text())["objects"] if o["cls"] == "concrete_cube"]
@@ -296,10 +296,10 @@ def test_rerun_is_a_no_op_and_deterministic(smoke_run):
     proc = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--configfile", "config_smoke.yaml"],
                           cwd=smoke_run, capture_output=True, text=True)
     assert proc.returncode == 0 and "Nothing to be done" in proc.stdout + proc.stderr
-    tv = load_templates(smoke_run / "results/templates/tetrapod_s.npz")
+    tv = read_templates(smoke_run / "results/templates/tetrapod_s.npz")
     subprocess.run([sys.executable, "-m", "snakemake", "--cores", "1", "--configfile", "config_smoke.yaml",
                     "--forcerun", "template_scan", "results/templates/tetrapod_s.npz"],
                    cwd=smoke_run, capture_output=True, text=True, check=True)
-    again = load_templates(smoke_run / "results/templates/tetrapod_s.npz")
+    again = read_templates(smoke_run / "results/templates/tetrapod_s.npz")
     assert np.array_equal(tv.xyz, again.xyz)
     assert len(before) > 0

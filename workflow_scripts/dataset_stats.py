@@ -5,11 +5,11 @@ from common import job
 from pathlib import Path
 
 from sonardet.io.atomic import atomic_path
-from sonardet.sim.dataset import dataset_stats, load_scene_meta, read_split
+from sonardet.sim.dataset import dataset_stats, read_scene_meta, read_split
 
 with job(snakemake, "dataset_stats") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
-    metas = {Path(p).stem: load_scene_meta(p) for p in smk.input.scenes}
+    metas = {Path(p).stem: read_scene_meta(p) for p in smk.input.scenes}
     splits = {Path(p).stem: read_split(p) for p in smk.input.splits}
     table = dataset_stats(metas, splits, smk.params.classes)
     with atomic_path(smk.output[0]) as tmp:

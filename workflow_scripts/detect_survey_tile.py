@@ -5,7 +5,7 @@ from common import job, job_method, job_resources
 import json
 
 from sonardet import methods
-from sonardet.detect.survey import read_tile_points
+from sonardet.survey import read_tile_points
 from sonardet.io.annotations import write_detections
 from sonardet.io.atomic import atomic_write_text
 

@@ -4,11 +4,11 @@ from common import job
 
 import json
 
-from sonardet.seeds import derive_seed
 from sonardet.eval.noise import characterize_noise, simulated_flat_patch, to_json
 from sonardet.io.atomic import atomic_write_text
-from sonardet.io.pointcloud import read_points
+from sonardet.io.points import read_points
 from sonardet.report import plot_noise
+from sonardet.seeds import derive_seed
 
 with job(snakemake, "noise_characterization") as log:  # noqa: F821
     smk = snakemake  # noqa: F821

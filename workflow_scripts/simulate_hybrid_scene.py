@@ -4,20 +4,20 @@ from common import job
 
 import os
 
-from sonardet.objects import load_object
-from sonardet.sim.hybrid import load_real_survey, simulate_hybrid_scene
-from sonardet.sim.scene import save_scene
+from sonardet.io.scenes import write_scene
+from sonardet.objects import read_object
+from sonardet.sim.hybrid import read_real_survey, simulate_hybrid_scene
 
 with job(snakemake, "simulate_scene_hybrid") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     cfg = smk.params.config
-    objects = {os.path.basename(p)[: -len(".json")]: load_object(p) for p in smk.input.meta}
-    survey = load_real_survey(smk.input.soundings, cfg["hybrid_test"]["crs"])
+    objects = {os.path.basename(p)[: -len(".json")]: read_object(p) for p in smk.input.meta}
+    survey = read_real_survey(smk.input.soundings, cfg["hybrid_test"]["crs"])
     log.info("%s: %d soundings, %d pings, transducer fit rms %.1f mm (median), origin %s", smk.input.soundings,
              len(survey.xyz), len(survey.pings), 1e3 * float(sorted(survey.fit_rms_m)[len(survey.pings) // 2]),
              survey.origin.tolist())
     scene = simulate_hybrid_scene(smk.wildcards.scene, cfg, objects, survey)
-    save_scene(scene, smk.output.npz, smk.output.json)
+    write_scene(scene, smk.output.npz, smk.output.json)
     m = scene.meta
     log.info("%s: %d objects (%d visible), %d objects left out (off the covered seabed), %d soundings moved "
              "onto objects, timings %s", smk.wildcards.scene, len(m["objects"]),

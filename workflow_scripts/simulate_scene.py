@@ -4,15 +4,16 @@ from common import job
 
 import os
 
-from sonardet.objects import load_object
-from sonardet.sim.scene import save_scene, simulate_scene
+from sonardet.io.scenes import write_scene
+from sonardet.objects import read_object
+from sonardet.sim.scene import simulate_scene
 
 with job(snakemake, "simulate_scene") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     cfg = smk.params.config
-    objects = {os.path.basename(p)[: -len(".json")]: load_object(p) for p in smk.input.meta}
+    objects = {os.path.basename(p)[: -len(".json")]: read_object(p) for p in smk.input.meta}
     scene = simulate_scene(smk.wildcards.scene, cfg, objects)
-    save_scene(scene, smk.output.npz, smk.output.json)
+    write_scene(scene, smk.output.npz, smk.output.json)
     m = scene.meta
     log.info("%s: %d objects (%d visible), %d removed, %d points (%.0f /m^2), %s lines, timings %s",
              smk.wildcards.scene, len(m["objects"]), sum(o["visible"] for o in m["objects"]), len(m["removed"]),

@@ -6,9 +6,9 @@ from common import job
 import json
 from pathlib import Path
 
-from sonardet.detect.survey import merge_survey_detections, read_tile_index, write_survey_detections
 from sonardet.io.annotations import read_detections
 from sonardet.io.atomic import atomic_write_text
+from sonardet.survey import merge_survey_detections, read_tile_index, write_survey_detections
 
 with job(snakemake, "survey_detections") as log:  # noqa: F821
     smk = snakemake  # noqa: F821

@@ -4,13 +4,13 @@ from common import job
 
 from pathlib import Path
 
-from sonardet.detect.survey import object_footprint_m, split_survey
-from sonardet.objects import load_object
+from sonardet.objects import read_object
+from sonardet.survey import object_footprint_m, split_survey
 
 with job(snakemake, "survey_tiles") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     survey, cfg = smk.wildcards.survey, smk.params.split
-    objects = {Path(p).stem: load_object(p) for p in smk.input.meta}
+    objects = {Path(p).stem: read_object(p) for p in smk.input.meta}
     footprint = object_footprint_m(objects)
     log.info("%s: largest object footprint %.2f m (classes %s), overlap %g m", survey, footprint,
              ", ".join(objects), cfg["overlap_m"])

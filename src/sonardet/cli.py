@@ -19,10 +19,10 @@ import numpy as np
 
 
 def _export_scene(args) -> int:
-    from .io.pointcloud import PointCloud, write_points
-    from .sim.scene import load_scene_points
+    from .io.points import PointCloud, write_points
+    from .io.scenes import read_scene_points
 
-    pts = load_scene_points(args.scene)
+    pts = read_scene_points(args.scene)
     attrs = {k: np.asarray(v) for k, v in pts.items() if k != "xyz"}
     if args.out.suffix.lower() in (".las", ".laz"):
         # LAS has no int32 'label' field of its own; keep it as an extra dimension, ping/beam/line too.
@@ -34,11 +34,11 @@ def _export_scene(args) -> int:
 
 def _build_objects(args) -> int:
     from .config import read_config
-    from .objects import build_object, save_object
+    from .objects import build_object, write_object
 
     cfg = read_config(args.config)
     for cls in cfg["classes"]:
-        meta = save_object(build_object(cls, cfg["objects"]), cfg["objects"]["density_kg_m3"],
+        meta = write_object(build_object(cls, cfg["objects"]), cfg["objects"]["density_kg_m3"],
                            args.out / f"{cls}.ply", args.out / f"{cls}.json")
         print(f"{cls}: height {meta['height_m']:.3f} m, volume {meta['volume_m3']:.4f} m^3, mass {meta['mass_kg']:.0f} kg")
     return 0
@@ -46,13 +46,14 @@ def _build_objects(args) -> int:
 
 def _simulate(args) -> int:
     from .config import read_config
-    from .objects import load_object
-    from .sim.scene import save_scene, simulate_scene
+    from .objects import read_object
+    from .io.scenes import write_scene
+    from .sim.scene import simulate_scene
 
     cfg = read_config(args.config)
-    objects = {c: load_object(args.objects / f"{c}.json") for c in cfg["classes"]}
+    objects = {c: read_object(args.objects / f"{c}.json") for c in cfg["classes"]}
     scene = simulate_scene(args.scene, cfg, objects)
-    save_scene(scene, args.out / f"{args.scene}.npz", args.out / f"{args.scene}.json")
+    write_scene(scene, args.out / f"{args.scene}.npz", args.out / f"{args.scene}.json")
     print(json.dumps({k: scene.meta[k] for k in ("stats", "timings_s", "survey")}, indent=1))
     return 0
 
@@ -62,7 +63,7 @@ def _detect_inputs(results: Path, classes: list[str], kinds) -> tuple[dict | Non
     needs them (`kinds`: its resources); a missing file is a FileNotFoundError naming it and the
     Snakemake target that builds it."""
     from .io.templates import read_templates
-    from .objects import load_object
+    from .objects import read_object
 
     if "objects" not in kinds and "templates" not in kinds:
         return None, None
@@ -78,7 +79,7 @@ def _detect_inputs(results: Path, classes: list[str], kinds) -> tuple[dict | Non
                     f"{f}: missing (class {cls!r}); build it with `snakemake --cores 2 {target}` in the "
                     f"workflow folder, point --results at a folder holding objects/ and templates/, or leave "
                     f"the class out with --classes")
-        objects[cls] = load_object(results / "objects" / f"{cls}.json")
+        objects[cls] = read_object(results / "objects" / f"{cls}.json")
         if "templates" in kinds:
             templates[cls] = read_templates(results / "templates" / f"{cls}.npz")
     return objects, (templates if "templates" in kinds else None)
@@ -143,9 +144,9 @@ def _run_detect(args) -> int:
     from .io.annotations import to_builtin, validate_detections
     from .io.atomic import atomic_write_text
     from .io.export import write_detections_csv, write_detections_geojson
-    from .io.pointcloud import read_points
+    from .io.points import read_points
     from .methods import Resources
-    from .detect.tiling import detect_tiled, plan_tiles
+    from .survey import detect_tiled, plan_tiles
 
     t0 = time.perf_counter()
     cfg = _config(args)

@@ -54,11 +54,11 @@ def job_resources(smk, method: Method | None = None) -> Resources:
     """A job's Resources from its named inputs: `meta` (object JSONs, meshes beside them) -> object
     models, `templates` -> template scans, `model` -> the trained model file; threads from the job."""
     from .io.templates import read_templates
-    from .objects import load_object
+    from .objects import read_object
 
     inp = smk.input
     names = set(inp.keys()) if hasattr(inp, "keys") else set()
-    objects = {Path(p).stem: load_object(p) for p in inp.meta} if "meta" in names else None
+    objects = {Path(p).stem: read_object(p) for p in inp.meta} if "meta" in names else None
     templates = {Path(p).stem: read_templates(p) for p in inp.templates} if "templates" in names else None
     model = Path(inp.model) if "model" in names else None
     device = (method.settings.get("device", "auto") if method is not None else "auto")

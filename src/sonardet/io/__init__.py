@@ -1,1 +1,13 @@
-"""Readers and writers: point clouds, annotations, detections; atomic writes; local origins."""
+"""The file layer: every file format the library reads or writes, one verb pair (`read_*` / `write_*`) each.
+
+* `points`: point clouds (text, LAS/LAZ, PLY, NPZ) behind one format table (`read_points`,
+  `write_points`, `iter_chunks`), float64 georeferenced coordinates;
+* `annotations`: scene and detection JSON documents, validated on read and write;
+* `scenes`: the scene file pair (`{scene}.npz` soundings + `{scene}.json` annotations);
+* `templates`: template scan files of the model-based detector;
+* `export`: detections as CSV and GeoJSON;
+* `atomic`: atomic writes; `origin`: local origins for float32 work on georeferenced coordinates.
+
+This package imports only numpy, the file libraries it needs (pandas, laspy, trimesh, each where its
+format is read or written) and layer 0 (`sonardet`, `sonardet.geometry`).
+"""

@@ -196,7 +196,7 @@ def validate_detections(doc, source="<detections>", classes=None, expected_scene
     return out
 
 
-def _load_json(path) -> dict:
+def _read_json(path) -> dict:
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -220,7 +220,7 @@ def read_scene(path, classes=None, expected_scene: str | None = None, check_file
     The scene id must equal `expected_scene` if given, else the file-name stem (unless check_filename is
     False). Objects keep their `visible` flag; evaluation drops invisible ones.
     """
-    return validate_scene(_load_json(path), path, classes, _expected(path, expected_scene, check_filename))
+    return validate_scene(_read_json(path), path, classes, _expected(path, expected_scene, check_filename))
 
 
 def read_detections(path, classes=None, expected_scene: str | None = None, check_filename: bool = True) -> dict:
@@ -229,7 +229,7 @@ def read_detections(path, classes=None, expected_scene: str | None = None, check
     The scene id is checked as in `read_scene`. Returns the normalized document (scores as float,
     `extras` present on every detection).
     """
-    return validate_detections(_load_json(path), path, classes, _expected(path, expected_scene, check_filename))
+    return validate_detections(_read_json(path), path, classes, _expected(path, expected_scene, check_filename))
 
 
 def to_builtin(x):

@@ -8,7 +8,7 @@ float64, with a float64 ``origin`` kept alongside so results can be shifted back
 
 Where to use what
 -----------------
-* Readers (``sonardet.io.pointcloud.read_points``) return float64 coordinates in the file's frame
+* Readers (``sonardet.io.points.read_points``) return float64 coordinates in the file's frame
   (the CRS's, e.g. EPSG:32610 metres). Geometry on them stays float64.
 * Before casting to float32 (``.astype(np.float32)``, ``torch.from_numpy(...).float()``, building
   float32 tensors, writing float32 buffers), get coordinates through :meth:`LocalFrame.to_local`
@@ -171,7 +171,7 @@ def to_local(
         raise GlobalCoordinatesError(
             f"to_local: input is already {arr.dtype} with |coordinate| > {limit_m:g} m, so it has lost "
             "0.03-0.5 m of precision; read and keep global coordinates in float64 "
-            "(sonardet.io.pointcloud.read_points does)"
+            "(sonardet.io.points.read_points does)"
         )
     local = arr.astype(np.float64, copy=False) - org
     if out_dtype.itemsize < 8:

@@ -1,7 +1,7 @@
 """Object classes (registry of specs), their procedural meshes and the on-disk object files."""
 
 from . import classes
-from .catalog import ObjectInfo, canonical_box, load_object, metadata, object_info, save_object
+from .catalog import ObjectInfo, canonical_box, read_object, metadata, object_info, write_object
 from .classes import ClassSpec, build_object, footprint_radius_m
 from .meshes import SYMMETRY_CONTINUOUS, ObjectModel
 
@@ -14,8 +14,8 @@ __all__ = [
     "canonical_box",
     "classes",
     "footprint_radius_m",
-    "load_object",
+    "read_object",
     "metadata",
     "object_info",
-    "save_object",
+    "write_object",
 ]

@@ -102,7 +102,7 @@ def _jsonable(x):
     return x
 
 
-def save_object(model: ObjectModel, density_kg_m3: float, ply_path, json_path) -> dict:
+def write_object(model: ObjectModel, density_kg_m3: float, ply_path, json_path) -> dict:
     """Write the mesh (binary PLY) and its metadata (JSON), each atomically. Returns the metadata."""
     meta = metadata(model, density_kg_m3)
     atomic_write_bytes(ply_path, trimesh.exchange.ply.export_ply(model.mesh, encoding="binary"))
@@ -110,8 +110,8 @@ def save_object(model: ObjectModel, density_kg_m3: float, ply_path, json_path) -
     return meta
 
 
-def load_object(json_path, ply_path=None) -> ObjectInfo:
-    """Read an object written by :func:`save_object` (PLY beside the JSON unless given)."""
+def read_object(json_path, ply_path=None) -> ObjectInfo:
+    """Read an object written by :func:`write_object` (PLY beside the JSON unless given)."""
     json_path = Path(json_path)
     ply_path = Path(ply_path) if ply_path else json_path.with_suffix(".ply")
     meta = json.loads(json_path.read_text())

@@ -11,7 +11,7 @@ from .figures import (
     plot_pr_curves,
     plot_topview,
 )
-from .inputs import benchmark_summary, count_annotations, load_metrics, load_pr_curves, read_benchmark
+from .inputs import benchmark_summary, count_annotations, read_benchmark, read_metrics, read_pr_curves
 from .scene_figures import densest_region, detection_list, place_mesh
 from .summary import machine_info, write_results_readme
 from .tables import (
@@ -39,8 +39,6 @@ __all__ = [
     "fraction_table",
     "image_is_informative",
     "latex_table",
-    "load_metrics",
-    "load_pr_curves",
     "machine_info",
     "markdown_table",
     "pareto_front",
@@ -53,6 +51,8 @@ __all__ = [
     "plot_pr_curves",
     "plot_topview",
     "read_benchmark",
+    "read_metrics",
+    "read_pr_curves",
     "realism_ablation_table",
     "timing_table",
     "write_results_readme",

@@ -13,9 +13,9 @@ import pandas as pd
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 
-from .inputs import load_pr_curves
+from .inputs import read_pr_curves
 from .scene_figures import plot_3d_poses, plot_dataset_example, plot_topview
-from .style import OKABE_ITO, method_family, method_style, new_figure, save_figure
+from .style import OKABE_ITO, method_family, method_style, new_figure, write_figure
 
 __all__ = [
     "image_is_informative",
@@ -44,7 +44,7 @@ def plot_pr_curves(pr_files: dict, classes, out_png, threshold: float = 0.5) -> 
     method. pr_files: method -> `eval/{method}/{dataset}/pr_curves.npz` path; classes: names to show
     (None: those of the first file). The curves are the devkit's interpolated ones (101 recall
     points), ending at the highest recall the method reached. Returns out_png."""
-    curves = {m: load_pr_curves(p) for m, p in pr_files.items()}
+    curves = {m: read_pr_curves(p) for m, p in pr_files.items()}
     if classes is None:
         first = next(iter(curves.values()), None)
         classes = [str(c) for c in first["classes"]] if first is not None else []
@@ -80,7 +80,7 @@ def plot_pr_curves(pr_files: dict, classes, out_png, threshold: float = 0.5) -> 
     if handles:
         fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 5), fontsize=8)
     fig.suptitle(f"precision-recall, centre-distance threshold {float(threshold):g} m")
-    return save_figure(fig, out_png)
+    return write_figure(fig, out_png)
 
 
 def plot_loss_curves(loss_csvs: dict, out_png) -> Path:
@@ -122,7 +122,7 @@ def plot_loss_curves(loss_csvs: dict, out_png) -> Path:
         axes[1].set_title("SASA validation mAP")
         axes[1].grid(alpha=0.3)
         axes[1].legend(fontsize=8)
-    return save_figure(fig, out_png)
+    return write_figure(fig, out_png)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -203,7 +203,7 @@ def plot_pareto(df: pd.DataFrame, out_png, x: str = "seconds_per_scene", y: str 
     ax.set_title("accuracy versus run time")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="best")
-    return save_figure(fig, out_png)
+    return write_figure(fig, out_png)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -267,7 +267,7 @@ def plot_noise(result: dict, out_png, simulated: dict | None = None) -> Path:
     axes = fig.subplots(1, len(results), squeeze=False, sharex=True).ravel()
     for ax, r in zip(axes, results):
         _noise_panel(ax, r, bins)
-    return save_figure(fig, out_png)
+    return write_figure(fig, out_png)
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -18,7 +18,7 @@ from .. import SCHEMA_VERSION
 PathLike = str | os.PathLike
 
 
-def load_json(source) -> dict:
+def read_json(source) -> dict:
     """A JSON document from a path, or the dict itself when one is given (not copied)."""
     if isinstance(source, dict):
         return source
@@ -31,9 +31,9 @@ def load_json(source) -> dict:
         raise ValueError(f"{path}: not valid JSON ({e})") from None
 
 
-def load_metrics(source) -> dict:
+def read_metrics(source) -> dict:
     """An evaluation `metrics.json` (see sonardet.eval.evaluate_files) or the dict; checks the keys used."""
-    m = load_json(source)
+    m = read_json(source)
     label = source if not isinstance(source, dict) else "<metrics>"
     if m.get("schema_version") not in (None, SCHEMA_VERSION):
         raise ValueError(f"{label}: schema_version {m.get('schema_version')!r} is not {SCHEMA_VERSION}; "
@@ -45,7 +45,7 @@ def load_metrics(source) -> dict:
     return m
 
 
-def load_pr_curves(path) -> dict[str, np.ndarray]:
+def read_pr_curves(path) -> dict[str, np.ndarray]:
     """PR curves `.npz` written by sonardet.eval.evaluate.write_pr_curves: classes (C,), thresholds_m
     (T,), recall (101,), precision and confidence (C, T, 101)."""
     with np.load(path, allow_pickle=False) as z:
@@ -84,6 +84,6 @@ def count_annotations(scene_jsons, visible_only: bool = True) -> int:
     objects with visible == false are left out unless visible_only is False."""
     n = 0
     for s in scene_jsons:
-        objs = load_json(s).get("objects", [])
+        objs = read_json(s).get("objects", [])
         n += sum(1 for o in objs if o.get("visible", True) or not visible_only)
     return n

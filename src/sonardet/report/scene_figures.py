@@ -15,8 +15,8 @@ from matplotlib.patches import Patch
 
 from ..geometry import box_corners, transform_points
 from ..io.annotations import read_detections
-from .inputs import load_json
-from .style import GT_STYLE, HEIGHT_CMAP, class_color, method_style, new_figure, save_figure
+from .inputs import read_json
+from .style import GT_STYLE, HEIGHT_CMAP, class_color, method_style, new_figure, write_figure
 
 # ---------------------------------------------------------------------------------------------------
 # Inputs
@@ -28,9 +28,9 @@ def _points(scene_npz) -> dict:
         return scene_npz
     if isinstance(scene_npz, np.ndarray):
         return {"xyz": np.asarray(scene_npz, dtype=np.float64)}
-    from ..sim.scene import load_scene_points
+    from ..io.scenes import read_scene_points
 
-    return load_scene_points(scene_npz)
+    return read_scene_points(scene_npz)
 
 
 def detection_list(source) -> list[dict]:
@@ -93,7 +93,7 @@ def plot_topview(scene_npz, scene_json, detections: dict, out_png, max_points: i
     drawn (random subset, fixed seed). Returns out_png.
     """
     xyz = _points(scene_npz)["xyz"]
-    scene = load_json(scene_json)
+    scene = read_json(scene_json)
     dets = {m: detection_list(d) for m, d in detections.items()}
     panels = list(dets) or [None]
     ncols = min(len(panels), 3)
@@ -133,7 +133,7 @@ def plot_topview(scene_npz, scene_json, detections: dict, out_png, max_points: i
     for ax in axes[len(panels):]:
         ax.set_axis_off()
     fig.colorbar(sc, ax=list(axes[:len(panels)]), shrink=0.8, label="elevation z (m)")
-    return save_figure(fig, out_png)
+    return write_figure(fig, out_png)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -194,9 +194,9 @@ def _in_region(items, region) -> list[dict]:
 
 
 def _load_objects(objects: dict) -> dict:
-    from ..objects import load_object
+    from ..objects import read_object
 
-    return {c: (load_object(o) if isinstance(o, (str, Path)) else o) for c, o in objects.items()}
+    return {c: (read_object(o) if isinstance(o, (str, Path)) else o) for c, o in objects.items()}
 
 
 def plot_3d_poses(scene_json, detections: dict, objects: dict, out_png, region=None, scene_npz=None,
@@ -215,7 +215,7 @@ def plot_3d_poses(scene_json, detections: dict, objects: dict, out_png, region=N
     """
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    scene = load_json(scene_json)
+    scene = read_json(scene_json)
     objs = _load_objects(objects)
     gt = [o for o in scene.get("objects", []) if o.get("visible", True)]
     if region is None and gt:
@@ -274,7 +274,7 @@ def plot_3d_poses(scene_json, detections: dict, objects: dict, out_png, region=N
                    ncol=len(present), fontsize=8)
     fig.suptitle(f"scene {scene.get('scene', '')}: x {region[0]:.0f}-{region[1]:.0f} m, "
                  f"y {region[2]:.0f}-{region[3]:.0f} m")
-    return save_figure(fig, out_png)
+    return write_figure(fig, out_png)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -309,7 +309,7 @@ def plot_dataset_example(scene_npz, scene_json, out_png, max_points: int = 200_0
     """
     pts = _points(scene_npz)
     xyz = pts["xyz"]
-    scene = load_json(scene_json)
+    scene = read_json(scene_json)
     fig = new_figure(10.0, 5.0)
     ax, axh = fig.subplots(1, 2, width_ratios=[2.6, 1.0])
     idx = _subsample(len(xyz), max_points, seed)
@@ -346,4 +346,4 @@ def plot_dataset_example(scene_npz, scene_json, out_png, max_points: int = 200_0
     axh.set_ylabel("elevation z (m)")
     axh.set_title("elevation histogram", fontsize=10)
     axh.legend(fontsize=7)
-    return save_figure(fig, out_png)
+    return write_figure(fig, out_png)

@@ -83,7 +83,7 @@ def new_figure(width_in: float, height_in: float) -> Figure:
     return fig
 
 
-def save_figure(fig: Figure, out_png, dpi: int = DPI) -> Path:
+def write_figure(fig: Figure, out_png, dpi: int = DPI) -> Path:
     """Write a figure as PNG atomically (no half-written file on error); returns the path."""
     out_png = Path(out_png)
     with atomic_path(out_png) as tmp:

@@ -17,7 +17,7 @@ import pandas as pd
 
 from ..eval.evaluate import threshold_key
 from ..io.atomic import atomic_write_text
-from .inputs import benchmark_summary, count_annotations, load_json, load_metrics
+from .inputs import benchmark_summary, count_annotations, read_json, read_metrics
 from .study import STUDY, STUDY_SOURCE, study_map
 
 THIS_RUN = "this run"
@@ -148,7 +148,7 @@ def comparison_table(metrics: dict, classes=None, study: bool = True) -> pd.Data
     first metrics' classes), then mAP at every other threshold. With study=True the source study's rows
     follow ('SASA (study)', 'model-based (study)'; only mAP and predictions are known).
     """
-    loaded = {k: load_metrics(v) for k, v in metrics.items()}
+    loaded = {k: read_metrics(v) for k, v in metrics.items()}
     first = next(iter(loaded.values()), None)
     headline = first["headline_m"] if first else 0.5
     if classes is None:
@@ -184,7 +184,7 @@ def realism_ablation_table(rows, headline_m: float = 0.5) -> pd.DataFrame:
     row per effect ('none' = plain sensor first, 'all' = every effect last, the others by the largest
     loss of any method), columns `mAP@{h}m {method}` and `change {method}` (mAP minus the plain
     sensor's) per method, and the realism_test keys the effect switches on."""
-    rows = load_json(rows) if not isinstance(rows, list) else rows
+    rows = read_json(rows) if not isinstance(rows, list) else rows
     if not rows:
         raise ValueError("realism ablation: no rows")
     methods = list(dict.fromkeys(r["method"] for r in rows))
@@ -209,7 +209,7 @@ def domain_randomisation_table(metrics: dict, pairs: dict) -> pd.DataFrame:
     rows = []
     for dataset, by_method in metrics.items():
         for dr, plain in pairs.items():
-            a, b = load_metrics(by_method[plain]), load_metrics(by_method[dr])
+            a, b = read_metrics(by_method[plain]), read_metrics(by_method[dr])
             col = _mAP_col(a["headline_m"])
             rows.append({"test set": dataset, "model": plain, f"{col} plain": a["mAP_headline"],
                          f"{col} with DR": b["mAP_headline"], "change": b["mAP_headline"] - a["mAP_headline"]})
@@ -228,13 +228,13 @@ def fraction_table(methods: list[dict], metrics: dict, scenes_dir=None) -> pd.Da
     Columns: method, training, training data (%), training scenes, training annotations,
     mAP@{headline}m, mAP@{headline}m (study).
     """
-    loaded = {k: load_metrics(v) for k, v in metrics.items()}
+    loaded = {k: read_metrics(v) for k, v in metrics.items()}
     headline = next(iter(loaded.values()))["headline_m"] if loaded else 0.5
     col, scol = _mAP_col(headline), _mAP_col(headline) + " (study)"
     rows = []
     trained = sorted((m for m in methods if m["trained"]), key=lambda m: int(m["fraction"]))
     for m in trained:
-        s = load_json(m["summary"])
+        s = read_json(m["summary"])
         n_ann = m.get("annotations")
         if n_ann is None and scenes_dir is not None and s.get("train_scenes"):
             n_ann = count_annotations(Path(scenes_dir) / f"{sid}.json" for sid in s["train_scenes"])
@@ -289,16 +289,16 @@ def timing_table(per_scene_stats: dict | None = None, per_dataset_timing: dict |
     rows = []
     bench_mem = {m: benchmark_summary(p)["max_rss_mb"] for m, p in (benchmarks or {}).items()}
     for method, files in (per_scene_stats or {}).items():
-        stats = [load_json(f) for f in files]
+        stats = [read_json(f) for f in files]
         if stats:
             rows += _stage_rows(method, stats, bench_mem.get(method, np.nan))
     for method, src in (per_dataset_timing or {}).items():
-        d = load_json(src)
+        d = read_json(src)
         mem = d.get("peak_rss_mb", bench_mem.get(method, np.nan))
         rows.append({"method": method, "stage": "inference", "unit": "s/scene", "n": d.get("n_scenes"),
                      "mean": d.get("s_per_scene"), "max": np.nan, "peak memory (MB)": mem})
     for method, src in (train_summaries or {}).items():
-        d = load_json(src)
+        d = read_json(src)
         rows.append({"method": method, "stage": "training", "unit": "s", "n": d.get("n_train_scenes"),
                      "mean": d.get("train_time_s"), "max": np.nan, "peak memory (MB)": d.get("peak_rss_mb")})
         rows.append({"method": method, "stage": "training step", "unit": "s/step", "n": d.get("steps"),
@@ -313,7 +313,7 @@ def timing_table(per_scene_stats: dict | None = None, per_dataset_timing: dict |
 
 def _simulation_rows(scene_jsons, simulation_benchmarks) -> list[dict]:
     rows = []
-    sims = [load_json(s) for s in (scene_jsons or [])]
+    sims = [read_json(s) for s in (scene_jsons or [])]
     if sims:
         keys: list[str] = []
         for s in sims:

@@ -62,6 +62,6 @@ def dataset_stats(scene_jsons: dict[str, dict], splits: dict[str, list[str]], cl
     return pd.DataFrame(rows)
 
 
-def load_scene_meta(path) -> dict:
+def read_scene_meta(path) -> dict:
     """Read a scene JSON (validation of the contract lives in sonardet.io.annotations)."""
     return json.loads(Path(path).read_text())

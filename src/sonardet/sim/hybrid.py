@@ -160,7 +160,7 @@ def estimate_sensor_positions(xyz: np.ndarray, ping: np.ndarray, range_m: np.nda
     return pings, pos, rms
 
 
-def load_real_survey(path, crs: str = "") -> RealSurvey:
+def read_real_survey(path, crs: str = "") -> RealSurvey:
     """Read a soundings table (:func:`read_soundings`), shift it to a local origin (whole metres below
     the minimum x and y; z unchanged) and estimate the transducer track."""
     df, sha = read_soundings(path)

@@ -10,12 +10,11 @@ buried), 4. MuJoCo settling of the objects (rocks act as fixed obstacles), optio
 burial in the sediment (`scenes.realism.burial_m`), 5. survey lines along x, y or both, 6. Embree
 ray casting, per line only against the geometry inside its swath ("model only what the scene
 needs"), with the sensor's optional realism profile (`sensor.realism`), 7. annotations: pose, box,
-number of soundings, visibility.
+number of soundings, visibility. The scene files are read and written by `sonardet.io.scenes`.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -25,7 +24,6 @@ import numpy as np
 from .. import SCHEMA_VERSION
 from ..seeds import config_hash, derive_seed
 from ..geometry import quat_to_matrix
-from ..io.atomic import atomic_path, atomic_write_text
 from ..objects import ObjectInfo
 from ..objects.catalog import canonical_box
 from .layout import plan_layout
@@ -44,7 +42,7 @@ ROCK_ID = -3
 @dataclass
 class Scene:
     """A synthesized scene: soundings (xyz float64 (N,3), ping, beam, line, label = object index or -1)
-    and its metadata (the JSON contract of DESIGN.md section 3)."""
+    and its metadata (the JSON contract of DESIGN.md section 3); `sonardet.io.scenes.write_scene` writes it."""
 
     xyz: np.ndarray
     ping: np.ndarray
@@ -295,28 +293,3 @@ def annotate_objects(kept, spawns, objects: dict[str, ObjectInfo], label: np.nda
         if buried is not None:
             objs[-1]["burial_m"] = float(buried[idx])
     return objs
-
-
-def save_scene(scene: Scene, npz_path, json_path) -> None:
-    """Write the soundings (.npz) and the metadata (.json), each atomically."""
-    with atomic_path(npz_path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, xyz=scene.xyz, ping=scene.ping, beam=scene.beam, line=scene.line, label=scene.label)
-    atomic_write_text(json_path, json.dumps(scene.meta, indent=1))
-
-
-def load_scene_points(npz_path) -> dict:
-    """Read a scene's soundings; validates shapes, dtype and finiteness (errors name the file)."""
-    with np.load(npz_path, allow_pickle=False) as z:
-        out = {k: z[k] for k in z.files}
-    xyz = out.get("xyz")
-    if xyz is None or xyz.ndim != 2 or xyz.shape[1] != 3:
-        raise ValueError(f"{npz_path}: 'xyz' must be an (N,3) array")
-    if xyz.dtype != np.float64:
-        raise ValueError(f"{npz_path}: 'xyz' must be float64, found {xyz.dtype}")
-    if not np.all(np.isfinite(xyz)):
-        raise ValueError(f"{npz_path}: 'xyz' holds NaN/Inf at row {int(np.flatnonzero(~np.isfinite(xyz).all(1))[0])}")
-    for k in ("ping", "beam", "line", "label"):
-        if k in out and len(out[k]) != len(xyz):
-            raise ValueError(f"{npz_path}: '{k}' has {len(out[k])} entries for {len(xyz)} points")
-    return out

@@ -6,47 +6,17 @@ offset, the transducer `altitude_m` above the seabed. Only the object is cast ag
 misses it would hit the flat seabed, which the detectors remove anyway, so the template holds
 object points only ("seabed removed by construction") and only the beams and pings that can reach
 the object are modelled. Points are stored in the object's canonical frame, so a detector can pose
-them directly, together with the view's pose and scan geometry.
+them directly, together with the view's pose and scan geometry. The files are read and written by
+`sonardet.io.templates` (`read_templates`, `write_templates`).
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass
-
 import numpy as np
 
-from .. import SCHEMA_VERSION
 from ..geometry import quat_from_yaw, quat_to_matrix
-from ..io.atomic import atomic_path
+from ..io.templates import TemplateViews
 from .mbes import RaycastTarget, SensorConfig, Trajectory, beam_angles, ping_rate_hz, scan
-
-
-@dataclass
-class TemplateViews:
-    """All views of one class. Per point: xyz (canonical frame, m), view index, ping, beam.
-    Per view: yaw (rad), line direction ('x' or 'y'), across-track offset of the object from the
-    track (m, positive = starboard), pose (t, q) of the object in the view's scene frame."""
-
-    cls: str
-    xyz: np.ndarray
-    view: np.ndarray
-    ping: np.ndarray
-    beam: np.ndarray
-    yaw_rad: np.ndarray
-    direction: np.ndarray
-    offset_m: np.ndarray
-    pose_t: np.ndarray
-    pose_q: np.ndarray
-    scan_params: dict
-
-    def points(self, view: int) -> np.ndarray:
-        """Canonical-frame points (K,3) of one view."""
-        return self.xyz[self.view == view]
-
-    @property
-    def n_views(self) -> int:
-        return len(self.yaw_rad)
 
 
 def scan_template_view(vertices, faces, radius_m: float, height_m: float, yaw_rad: float, direction: str,
@@ -122,27 +92,3 @@ def scan_templates(cls: str, vertices, faces, symmetry_order: int, cfg: dict, se
         pose_q=np.asarray(meta["q"]),
         scan_params={"altitude_m": cfg["altitude_m"], "sensor": sensor.to_dict()},
     )
-
-
-def save_templates(path, tv: TemplateViews) -> None:
-    """Write template views to an .npz (atomic)."""
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(
-                fh, schema_version=SCHEMA_VERSION, cls=tv.cls, xyz=tv.xyz, view=tv.view, ping=tv.ping,
-                beam=tv.beam, yaw_rad=tv.yaw_rad, direction=tv.direction, offset_m=tv.offset_m,
-                pose_t=tv.pose_t, pose_q=tv.pose_q, scan_params=json.dumps(tv.scan_params),
-            )
-
-
-def load_templates(path) -> TemplateViews:
-    """Read template views written by :func:`save_templates`; rejects other schema versions."""
-    with np.load(path, allow_pickle=False) as z:
-        version = int(z["schema_version"]) if "schema_version" in z else None
-        if version != SCHEMA_VERSION:
-            raise ValueError(f"{path}: schema_version {version} is not {SCHEMA_VERSION}; rebuild the templates")
-        return TemplateViews(
-            cls=str(z["cls"]), xyz=z["xyz"], view=z["view"], ping=z["ping"], beam=z["beam"],
-            yaw_rad=z["yaw_rad"], direction=z["direction"], offset_m=z["offset_m"], pose_t=z["pose_t"],
-            pose_q=z["pose_q"], scan_params=json.loads(str(z["scan_params"])),
-        )

@@ -1,7 +1,7 @@
 """Public entry point of the model-based (training-free) detector: :func:`detect`.
 
 Input: a float64 point cloud (N,3) in metres (scene frame or survey CRS, z up), the template scans
-(`sonardet.sim.templates.TemplateViews`) and the object models (`sonardet.objects.ObjectInfo`) of each
+(`sonardet.io.templates.TemplateViews`) and the object models (`sonardet.objects.ObjectInfo`) of each
 class to detect. Georeferenced input (|x| or |y| > 1e5 m, e.g. UTM) is shifted to a local origin
 (float64, `sonardet.io.origin.choose_origin`) before any geometry, and the outputs are shifted back,
 so the same survey gives the same detections in either frame.

@@ -9,11 +9,11 @@ operators). Reference: blakechen97/SASA. The network modules (torch) are importe
 
 from .config import DEFAULTS, PAPER, resolve_params
 
-__all__ = ["DEFAULTS", "PAPER", "resolve_params", "SASADetector", "train", "infer", "detect_points", "load_model",
+__all__ = ["DEFAULTS", "PAPER", "resolve_params", "SASADetector", "train", "infer", "detect_points", "read_model",
            "ConfigMismatchError"]
 
 _LAZY = {"SASADetector": "model", "train": "trainer", "infer": "trainer", "detect_points": "trainer",
-         "load_model": "trainer", "ConfigMismatchError": "trainer"}
+         "read_model": "trainer", "ConfigMismatchError": "trainer"}
 
 
 def __getattr__(name):

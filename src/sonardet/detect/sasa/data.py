@@ -31,7 +31,7 @@ import torch
 from scipy import ndimage
 
 from ...io.annotations import read_scene
-from ...sim.scene import load_scene_points
+from ...io.scenes import read_scene_points
 
 log = logging.getLogger(__name__)
 
@@ -155,7 +155,7 @@ def scene_paths(path) -> tuple[Path, Path]:
 def prepare_scene(path, params: dict, with_labels: bool = True) -> PreparedScene:
     """Load a scene (npz [+ json]) and prepare it (see module docstring). Labels need the json."""
     npz, js = scene_paths(path)
-    pts = load_scene_points(npz)
+    pts = read_scene_points(npz)
     keep, local, height, origin, gg = _prepare_points(pts["xyz"], params)
     classes = list(params["classes"])
     label = pts.get("label")
@@ -716,6 +716,6 @@ def collate(items: list[tuple], device) -> dict:
     }
 
 
-def load_json(path) -> dict:
+def read_json(path) -> dict:
     """Small helper: read a JSON file."""
     return json.loads(Path(path).read_text(encoding="utf-8"))

@@ -57,7 +57,7 @@ from .model import SASADetector
 
 log = logging.getLogger(__name__)
 
-__all__ = ["train", "infer", "detect_points", "load_model", "resolve_device", "ConfigMismatchError",
+__all__ = ["train", "infer", "detect_points", "read_model", "resolve_device", "ConfigMismatchError",
            "evaluate_scenes", "peak_memory_mb"]
 
 CHECKPOINT_FORMAT = "sonardet-sasa"
@@ -200,7 +200,7 @@ def _detect_prepared(model: SASADetector, scene: PreparedScene, params: dict, de
     return _to_detections(pred, scene.origin, list(params["classes"]))
 
 
-def load_model(model_path, params: dict | None = None, device=None) -> tuple[SASADetector, dict]:
+def read_model(model_path, params: dict | None = None, device=None) -> tuple[SASADetector, dict]:
     """Load ``model.pt``. ``params`` (partial or complete) may set inference and runtime keys (score
     threshold, NMS, threads); training-only keys (epochs, LR, augmentation, ...) are ignored; a
     network or input key that it sets to another value than the model's raises
@@ -240,7 +240,7 @@ def infer(model_path, scene_npz_paths, params: dict | None = None, device=None, 
         sorted by descending score. Timing: ``infer.last_timing`` holds seconds per scene.
     """
     device = resolve_device(device)
-    model, eff = load_model(model_path, params, device)
+    model, eff = read_model(model_path, params, device)
     _set_threads(eff)
     show = eff["progress"] if progress is None else progress
     out, times = {}, []
@@ -269,7 +269,7 @@ def detect_points(model_path, xyz: np.ndarray, params: dict | None = None, devic
     Returns the detections in the frame of ``xyz`` (see :func:`infer`).
     """
     device = resolve_device(device)
-    model, eff = load_model(model_path, params, device)
+    model, eff = read_model(model_path, params, device)
     keep, local, height, origin = prepare_points(xyz, eff)
     scene = PreparedScene(scene_id, local, height, np.full(len(local), -1, np.int64), np.zeros((0, 7), np.float32),
                           np.zeros(0, np.int64), np.zeros(0, np.int64), origin, len(xyz))

@@ -14,18 +14,32 @@ Writing is a small numpy writer (trimesh's exporter stores vertices as float32, 
 UTM precision): ``binary_little_endian``, ``property double x/y/z`` followed by one scalar property
 per attribute in its dtype (bool -> uchar; int64/uint64 -> int/uint when the values fit, else an
 error, since PLY has no 64-bit integers), plus the two comments above.
+
+There is no streaming reader: :func:`iter_chunks` reads the file whole and yields slices of it.
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from sonardet.io.pointcloud import PointCloud, PointCloudError, _merge_crs, atomic_path
+from sonardet.io.atomic import atomic_path
+from sonardet.io.points.core import DEFAULT_CHUNK_POINTS, PointCloud, PointCloudError, iter_slices, merge_crs
 
-__all__ = ["read_ply", "write_ply"]
+__all__ = ["NAME", "SUFFIXES", "STREAMED", "READ_OPTIONS", "WRITE_OPTIONS", "read", "write", "iter_chunks"]
+
+#: Format key (``sonardet.io.points.point_format``).
+NAME = "ply"
+#: File suffixes of this format.
+SUFFIXES: tuple[str, ...] = (".ply",)
+#: Whether :func:`iter_chunks` reads the file chunk by chunk (False: whole, then sliced).
+STREAMED = False
+#: Keywords of ``read_points`` / ``write_points`` this format takes.
+READ_OPTIONS: tuple[str, ...] = ()
+WRITE_OPTIONS: tuple[str, ...] = ()
 
 _MAX_HEADER_BYTES = 1 << 20
 _PLY_TYPES = {
@@ -76,8 +90,9 @@ def _parse_header(path: Path) -> tuple[str | None, np.ndarray | None, list[str] 
                     raise PointCloudError(f"{where}: 'comment sonardet_origin' needs 3 numbers, got {line!r}")
 
 
-def read_ply(path: str | Path, *, crs: str | None = None) -> PointCloud:
-    """Read the vertices of a ``.ply`` file: x, y, z float64 metres, scalar properties as attributes."""
+def read(path: str | Path, *, crs: str | None = None) -> PointCloud:
+    """Read the vertices of a ``.ply`` file: x, y, z float64 metres (the file's frame), scalar properties
+    as attributes, CRS and origin from the header comments; ``crs`` as in ``read_points``."""
     from trimesh.exchange.ply import load_ply
 
     p = Path(path)
@@ -127,7 +142,7 @@ def read_ply(path: str | Path, *, crs: str | None = None) -> PointCloud:
         arr = column(name)
         if arr is not None:
             attrs[name] = np.array(arr)
-    return PointCloud(xyz, attrs, crs=_merge_crs(file_crs, crs, where), source=where, origin=origin)
+    return PointCloud(xyz, attrs, crs=merge_crs(file_crs, crs, where), source=where, origin=origin)
 
 
 def _ply_dtype(name: str, values: np.ndarray, where: str) -> tuple[np.ndarray, str]:
@@ -153,7 +168,7 @@ def _ply_dtype(name: str, values: np.ndarray, where: str) -> tuple[np.ndarray, s
     return arr, _PLY_TYPES[key]
 
 
-def write_ply(path: str | Path, cloud: PointCloud) -> None:
+def write(path: str | Path, cloud: PointCloud) -> None:
     """Write ``cloud`` as binary little-endian PLY with ``double`` x, y, z (metres), atomically."""
     from sonardet import __version__
 
@@ -180,3 +195,13 @@ def write_ply(path: str | Path, cloud: PointCloud) -> None:
     with atomic_path(p) as tmp, open(tmp, "wb") as fh:
         fh.write(("\n".join(lines) + "\n").encode("utf-8"))
         fh.write(table.tobytes())
+
+
+def iter_chunks(
+    path: str | Path, *, crs: str | None = None, chunk_points: int = DEFAULT_CHUNK_POINTS
+) -> Iterator[PointCloud]:
+    """The file's x, y, z (float64 metres, the file's frame) in chunks of at most ``chunk_points`` points,
+    in file order, each a :class:`PointCloud` without attributes carrying the file's CRS and origin. The
+    file is read whole (24 bytes per point and more for its properties) and sliced; errors are those of
+    :func:`read`."""
+    yield from iter_slices(read(path, crs=crs), chunk_points)

@@ -14,8 +14,8 @@ CRS on read, first match wins:
      GeoTIFF key directory VLR;
   3. the ``sonardet`` VLR written when no standard CRS record could be made (see writing).
 
-Writing: LAS 1.4, point format 6, scales ``scale_m`` (default 0.001 m) and offsets at the data
-minimum floored to a whole metre, so the quantisation error is at most ``scale_m / 2``. Attributes
+Writing: LAS 1.4, point format 6, scales ``las_scale_m`` (default 0.001 m) and offsets at the data
+minimum floored to a whole metre, so the quantisation error is at most ``las_scale_m / 2``. Attributes
 named like a format-6 standard field go there if their values fit it losslessly (else an error
 asks for a rename); all others become extra-bytes fields of their own dtype (bool as uint8).
 ``return_number`` and ``number_of_returns`` default to 1. CRS: with pyproj any CRS is written as a
@@ -24,6 +24,9 @@ VLR generated here and WKT strings are written as given; other CRS strings are k
 ``sonardet`` VLR (user id ``sonardet``, record 1, UTF-8 text) with a warning, which this reader
 understands and other tools ignore. ``PointCloud.origin`` goes into ``sonardet`` record 2 (three
 little-endian float64). The creation date is ``SOURCE_DATE_EPOCH`` when set, else today.
+
+Chunked reading (:func:`iter_chunks`) streams the points through laspy's chunk iterator (LAZ too) and
+yields x, y, z only, scaled as :func:`read` scales them, with the file's CRS and origin.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import os
 import re
 import struct
 import warnings
+from collections.abc import Iterator
 from datetime import date, datetime, timezone
 from pathlib import Path
 
@@ -39,9 +43,23 @@ import laspy
 import numpy as np
 from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
 
-from sonardet.io.pointcloud import PointCloud, PointCloudError, _merge_crs, atomic_path, normalize_crs
+from sonardet import __version__
+from sonardet.io.atomic import atomic_path
+from sonardet.io.points.core import DEFAULT_CHUNK_POINTS, PointCloud, PointCloudError, merge_crs, normalize_crs
 
-__all__ = ["read_las", "write_las", "utm_wkt"]
+__all__ = [
+    "NAME", "SUFFIXES", "STREAMED", "READ_OPTIONS", "WRITE_OPTIONS", "read", "write", "iter_chunks", "utm_wkt",
+]
+
+#: Format key (``sonardet.io.points.point_format``).
+NAME = "las"
+#: File suffixes of this format (``.laz``: compressed).
+SUFFIXES: tuple[str, ...] = (".las", ".laz")
+#: Whether :func:`iter_chunks` reads the file chunk by chunk.
+STREAMED = True
+#: Keywords of ``read_points`` / ``write_points`` this format takes.
+READ_OPTIONS: tuple[str, ...] = ()
+WRITE_OPTIONS: tuple[str, ...] = ("las_scale_m",)
 
 SONARDET_VLR_USER = "sonardet"
 _VLR_CRS = 1
@@ -190,8 +208,9 @@ def _creation_date() -> date:
 
 
 # ---------------------------------------------------------------------------- read / write
-def read_las(path: str | Path, *, crs: str | None = None) -> PointCloud:
-    """Read a ``.las``/``.laz`` file: float64 scaled x, y, z (metres), attributes, CRS, origin."""
+def read(path: str | Path, *, crs: str | None = None) -> PointCloud:
+    """Read a ``.las``/``.laz`` file: float64 scaled x, y, z (metres, the file's frame), attributes, CRS
+    and origin (see the module docstring); ``crs`` as in ``read_points``."""
     p = Path(path)
     where = str(p)
     try:
@@ -222,20 +241,21 @@ def read_las(path: str | Path, *, crs: str | None = None) -> PointCloud:
     return PointCloud(
         xyz,
         attrs,
-        crs=_merge_crs(_read_crs(las), crs, where),
+        crs=merge_crs(_read_crs(las), crs, where),
         source=where,
         origin=_read_origin(las, where),
     )
 
 
-def write_las(path: str | Path, cloud: PointCloud, *, scale_m: float = 0.001) -> None:
+def write(path: str | Path, cloud: PointCloud, *, las_scale_m: float = 0.001) -> None:
     """Write ``cloud`` as LAS 1.4 point format 6 (``.laz``: compressed), atomically.
 
-    Coordinates are quantised to ``scale_m`` metres (default 1 mm), offsets at the data minimum
-    floored to a whole metre. See the module docstring for attributes and CRS.
+    Coordinates (metres, the cloud's frame) are quantised to ``las_scale_m`` metres (default 1 mm),
+    offsets at the data minimum floored to a whole metre. See the module docstring for attributes and CRS.
     """
     p = Path(path)
     where = str(p)
+    scale_m = las_scale_m
     if not (np.isfinite(scale_m) and scale_m > 0):
         raise PointCloudError(f"{where}: las_scale_m must be a positive number of metres, got {scale_m!r}")
     xyz = cloud.xyz
@@ -249,8 +269,6 @@ def write_las(path: str | Path, cloud: PointCloud, *, scale_m: float = 0.001) ->
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([scale_m] * 3, dtype=np.float64)
     header.offsets = offsets
-    from sonardet import __version__
-
     header.generating_software = f"sonardet {__version__}"
     header.system_identifier = "sonardet"
     header.creation_date = _creation_date()
@@ -289,6 +307,48 @@ def write_las(path: str | Path, cloud: PointCloud, *, scale_m: float = 0.001) ->
     compress = p.name.lower().endswith(".laz")
     with atomic_path(p) as tmp, open(tmp, "wb") as fh:
         las.write(fh, do_compress=compress)
+
+
+def _read_header(path: Path) -> tuple[str | None, np.ndarray | None, int]:
+    """(CRS, origin (m) or None, number of points) from the header and VLRs of a LAS/LAZ file."""
+    where = str(path)
+    try:
+        with laspy.open(path) as reader:
+            file_crs = _read_crs(reader)
+            origin = _read_origin(reader, where)
+            n = int(reader.header.point_count)
+    except (laspy.errors.LaspyException, OSError, ValueError, EOFError) as exc:
+        raise PointCloudError(f"{where}: not a readable LAS/LAZ file ({exc})") from exc
+    return file_crs, origin, n
+
+
+def iter_chunks(
+    path: str | Path, *, crs: str | None = None, chunk_points: int = DEFAULT_CHUNK_POINTS
+) -> Iterator[PointCloud]:
+    """The file's x, y, z (float64 metres, the file's frame, scaled as :func:`read` scales them) in chunks
+    of at most ``chunk_points`` points, in file order, each a :class:`PointCloud` without attributes
+    carrying the file's CRS (``crs`` as in ``read_points``) and origin. A file whose header counts no
+    points, or more points than it holds, is refused."""
+    p = Path(path)
+    where = str(p)
+    file_crs, origin, total = _read_header(p)
+    if total == 0:
+        raise PointCloudError(f"{where}: no points (the LAS header counts 0 points)")
+    merged = merge_crs(file_crs, crs, where)
+    n = 0
+    try:
+        with laspy.open(p) as reader:
+            scales, offsets = reader.header.scales, reader.header.offsets
+            for pts in reader.chunk_iterator(chunk_points):
+                xyz = np.empty((len(pts), 3), dtype=np.float64)
+                for i, raw in enumerate((pts.X, pts.Y, pts.Z)):
+                    xyz[:, i] = np.asarray(raw, dtype=np.float64) * scales[i] + offsets[i]
+                n += len(xyz)
+                yield PointCloud(xyz, crs=merged, source=where, origin=origin)
+    except (laspy.errors.LaspyException, OSError, ValueError, EOFError) as exc:
+        raise PointCloudError(f"{where}: not a readable LAS/LAZ file ({exc})") from exc
+    if n != total:
+        raise PointCloudError(f"{where}: header counts {total} points but {n} were read; the file is truncated")
 
 
 def _fit_standard(values: np.ndarray, dim, where: str) -> np.ndarray:

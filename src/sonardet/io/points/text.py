@@ -26,6 +26,11 @@ Reading
 * Speed: one pass of ``pandas.read_csv`` (C engine, exact float64 parsing). Only when that pass
   reports a problem does a slow line-by-line pass run to name the offending line.
 
+Chunked reading (:func:`iter_chunks`) streams the file through the same parser, ``chunk_points`` rows
+at a time, and yields x, y, z only (same layout detection and values as :func:`read`; attribute
+columns are not kept, ``columns=`` and ``depth_to_z=`` are not available). A problem in a chunk is
+reported by :func:`read` on the whole file, whose message names the line.
+
 Writing
 -------
 Columns x, y, z, then attributes in dict order. ``.csv`` uses commas, the others a single space.
@@ -49,11 +54,26 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
-from sonardet.io.pointcloud import PointCloud, PointCloudError, _check_finite, _merge_crs, atomic_path
+from sonardet.io.atomic import atomic_path
+from sonardet.io.points.core import DEFAULT_CHUNK_POINTS, PointCloud, PointCloudError, check_finite, merge_crs
 
-__all__ = ["read_text", "write_text", "AXIS_ALIASES", "DEPTH_NAMES"]
+__all__ = [
+    "NAME", "SUFFIXES", "BASE_SUFFIXES", "STREAMED", "READ_OPTIONS", "WRITE_OPTIONS", "AXIS_ALIASES",
+    "DEPTH_NAMES", "read", "write", "iter_chunks",
+]
+
+#: Format key (``sonardet.io.points.point_format``).
+NAME = "text"
+#: Plain-text suffixes; each may also end in ``.gz``.
+BASE_SUFFIXES: tuple[str, ...] = (".xyz", ".txt", ".pts", ".csv")
+#: File suffixes of this format.
+SUFFIXES: tuple[str, ...] = (*BASE_SUFFIXES, *(s + ".gz" for s in BASE_SUFFIXES))
+#: Whether :func:`iter_chunks` reads the file chunk by chunk.
+STREAMED = True
+#: Keywords of ``read_points`` / ``write_points`` this format takes.
+READ_OPTIONS: tuple[str, ...] = ("columns", "depth_to_z")
+WRITE_OPTIONS: tuple[str, ...] = ("header", "decimals")
 
 AXIS_ALIASES: dict[str, tuple[str, ...]] = {
     "x": ("x", "easting", "east", "e"),
@@ -231,20 +251,35 @@ def _resolve(names: list[str], where: str, depth_to_z: bool) -> tuple[int, int, 
     return found["x"], found["y"], found["z"], from_depth
 
 
-def read_text(
-    path: str | Path,
-    *,
-    columns: Sequence[str] | None = None,
-    crs: str | None = None,
-    depth_to_z: bool = False,
-) -> PointCloud:
-    """Read a text point cloud (see the module docstring); xyz float64 metres as written in the file."""
-    p = Path(path)
-    where = str(p)
-    suffix, gz = _base_suffix(p)
-    layout = _peek(p, gz, suffix == ".pts")
-    ncols_first = len(layout.first_tokens)
+@dataclass
+class _Columns:
+    """A text file's layout and how its columns map to x, y, z (column indices ``xyz``)."""
 
+    path: Path
+    gz: bool
+    layout: _Layout
+    names: list[str]
+    xyz: tuple[int, int, int]
+    from_depth: bool  # z is -depth
+
+    @property
+    def where(self) -> str:
+        """The file, as messages name it."""
+        return str(self.path)
+
+    def xyz_check(self) -> dict[int, str]:
+        """Column index -> name of the coordinate columns (which must hold numbers)."""
+        return {i: self.names[i] for i in self.xyz}
+
+    def diagnose(self, check: dict[int, str] | None = None, stop_row: int | None = None) -> int | None:
+        """`_diagnose` on this file (default check: the coordinate columns)."""
+        check = self.xyz_check() if check is None else check
+        return _diagnose(self.path, self.gz, self.layout, len(self.names), check, stop_row)
+
+
+def _column_names(layout: _Layout, columns: Sequence[str] | None, where: str) -> list[str]:
+    """Names of the columns in file order: ``columns=``, else the header, else x, y, z, col3, ..."""
+    ncols_first = len(layout.first_tokens)
     if columns is not None:
         names = [str(c).strip() for c in columns]
     elif layout.header is not None:
@@ -262,87 +297,125 @@ def read_text(
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
         raise PointCloudError(f"{where}: duplicate column names {dup}; rename them or pass columns=[...]")
-    expected = len(names)
-    xi, yi, zi, from_depth = _resolve(names, where, depth_to_z)
-    xyz_check = {xi: names[xi], yi: names[yi], zi: names[zi]}
+    return names
 
+
+def _csv_options(layout: _Layout, gz: bool) -> dict:
+    """Keywords of ``pandas.read_csv`` for the data lines of a file with this layout (C engine)."""
     sep_kw: dict = {"sep": r"\s+"} if layout.delim is None else {"sep": layout.delim, "skipinitialspace": True}
+    return dict(header=None, skiprows=layout.skip, comment="#", engine="c", compression="gzip" if gz else None,
+                encoding=_ENCODING, encoding_errors="replace", skip_blank_lines=True, index_col=False, **sep_kw)
+
+
+def _read_frame(cols: _Columns):
+    """The data lines as a pandas DataFrame (one fast pass); raise naming the line on a bad file."""
+    import pandas as pd
+
+    where = cols.where
     try:
-        df = pd.read_csv(
-            p,
-            header=None,
-            skiprows=layout.skip,
-            comment="#",
-            engine="c",
-            compression="gzip" if gz else None,
-            encoding=_ENCODING,
-            encoding_errors="replace",
-            skip_blank_lines=True,
-            index_col=False,
-            **sep_kw,
-        )
+        df = pd.read_csv(cols.path, **_csv_options(cols.layout, cols.gz))
     except pd.errors.ParserError as exc:
-        _diagnose(p, gz, layout, expected, xyz_check)
+        cols.diagnose()
         raise PointCloudError(f"{where}: cannot parse the file ({exc})") from exc
     except pd.errors.EmptyDataError as exc:
         raise PointCloudError(f"{where}: no points") from exc
     except (OSError, EOFError, UnicodeError) as exc:
         raise PointCloudError(f"{where}: cannot read the file ({exc})") from exc
-
-    if df.shape[1] != expected:
-        _diagnose(p, gz, layout, expected, xyz_check)
-        raise PointCloudError(f"{where}: expected {expected} columns, the file has {df.shape[1]}")
+    if df.shape[1] != len(cols.names):
+        cols.diagnose()
+        raise PointCloudError(f"{where}: expected {len(cols.names)} columns, the file has {df.shape[1]}")
     if df.shape[0] == 0:
         raise PointCloudError(f"{where}: no points")
+    return df
 
-    # Classify columns: coordinates must be numeric, attributes numeric or dropped text columns.
+
+def _attribute_columns(df, cols: _Columns) -> list[int]:
+    """Indices of the attribute columns to keep. Coordinates must be numeric; attribute columns are kept
+    when numeric, dropped with a warning when their first value is not a number, refused otherwise."""
+    import pandas as pd
+
+    names, first_tokens = cols.names, cols.layout.first_tokens
     bad_numeric: dict[int, str] = {}
     keep: list[int] = []
-    for i in range(expected):
+    for i in range(len(names)):
         col = df.iloc[:, i]
         numeric = pd.api.types.is_numeric_dtype(col) or pd.api.types.is_bool_dtype(col)
-        if i in (xi, yi, zi):
+        if i in cols.xyz:
             if not numeric:
                 bad_numeric[i] = names[i]
             continue
         if numeric:
             keep.append(i)
-        elif _is_number(str(layout.first_tokens[i]) if i < ncols_first else ""):
+        elif _is_number(str(first_tokens[i]) if i < len(first_tokens) else ""):
             bad_numeric[i] = names[i]
         else:
-            warnings.warn(f"{where}: column {names[i]!r} is not numeric and is not kept", stacklevel=3)
+            # stacklevel: this helper, read, read_points, the caller of read_points.
+            warnings.warn(f"{cols.where}: column {names[i]!r} is not numeric and is not kept", stacklevel=4)
     if bad_numeric:
-        _diagnose(p, gz, layout, expected, {**xyz_check, **bad_numeric})
-        raise PointCloudError(f"{where}: columns {list(bad_numeric.values())} hold values that are not numbers")
+        cols.diagnose({**cols.xyz_check(), **bad_numeric})
+        raise PointCloudError(f"{cols.where}: columns {list(bad_numeric.values())} hold values that are not numbers")
+    return keep
 
-    if df.isna().to_numpy().any():
-        # Short lines are filled with NaN by the fast reader: find them (and bad tokens) first.
-        _diagnose(p, gz, layout, expected, xyz_check)
 
+def _coordinates(df, cols: _Columns) -> np.ndarray:
+    """x, y, z of the rows, float64 (N, 3) metres (z = -depth for a depth column); NaN/Inf refused with
+    the line named."""
     xyz = np.empty((df.shape[0], 3), dtype=np.float64)
-    xyz[:, 0] = df.iloc[:, xi].to_numpy(dtype=np.float64)
-    xyz[:, 1] = df.iloc[:, yi].to_numpy(dtype=np.float64)
-    xyz[:, 2] = df.iloc[:, zi].to_numpy(dtype=np.float64)
-    if from_depth:
+    for k, i in enumerate(cols.xyz):
+        xyz[:, k] = df.iloc[:, i].to_numpy(dtype=np.float64)
+    if cols.from_depth:
         np.negative(xyz[:, 2], out=xyz[:, 2])
     finite = np.isfinite(xyz).all(axis=1)
     if not finite.all():
         row = int(np.argmin(finite))
-        lineno = _diagnose(p, gz, layout, expected, xyz_check, stop_row=row)
+        lineno = cols.diagnose(stop_row=row)
         lines = {row: lineno} if lineno is not None else None
-        _check_finite(xyz, where, line_of_row=lines)  # raises
+        check_finite(xyz, cols.where, line_of_row=lines)  # raises
+    return xyz
 
-    if layout.count is not None and layout.count != xyz.shape[0]:
+
+def _check_count(layout: _Layout, n_points: int, where: str) -> None:
+    """Refuse a PTS file whose count line disagrees with the points read."""
+    if layout.count is not None and layout.count != n_points:
         raise PointCloudError(
-            f"{where}: the PTS count line says {layout.count} points but {xyz.shape[0]} were read; "
+            f"{where}: the PTS count line says {layout.count} points but {n_points} were read; "
             "fix the count line or the truncated file"
         )
+
+
+def read(
+    path: str | Path,
+    *,
+    crs: str | None = None,
+    columns: Sequence[str] | None = None,
+    depth_to_z: bool = False,
+) -> PointCloud:
+    """Read a text point cloud (see the module docstring): xyz float64 metres as written in the file (the
+    file's frame), numeric extra columns as attributes; ``columns``, ``crs`` and ``depth_to_z`` as in
+    ``read_points``."""
+    p = Path(path)
+    where = str(p)
+    suffix, gz = _base_suffix(p)
+    layout = _peek(p, gz, suffix == ".pts")
+    names = _column_names(layout, columns, where)
+    xi, yi, zi, from_depth = _resolve(names, where, depth_to_z)
+    cols = _Columns(p, gz, layout, names, (xi, yi, zi), from_depth)
+    df = _read_frame(cols)
+    keep = _attribute_columns(df, cols)
+    if df.isna().to_numpy().any():
+        # Short lines are filled with NaN by the fast reader: find them (and bad tokens) first.
+        cols.diagnose()
+    xyz = _coordinates(df, cols)
+    _check_count(layout, xyz.shape[0], where)
     attrs = {names[i]: df.iloc[:, i].to_numpy() for i in keep}
-    return PointCloud(xyz, attrs, crs=_merge_crs(None, crs, where), source=where)
+    return PointCloud(xyz, attrs, crs=merge_crs(None, crs, where), source=where)
 
 
-def write_text(path: str | Path, cloud: PointCloud, *, header: bool | None = None, decimals: int | None = None) -> None:
-    """Write ``cloud`` as text (see the module docstring), atomically."""
+def write(path: str | Path, cloud: PointCloud, *, header: bool | None = None, decimals: int | None = None) -> None:
+    """Write ``cloud`` as text (see the module docstring), atomically: x, y, z in metres as held (the
+    cloud's frame), then the attributes; ``header`` and ``decimals`` as in ``write_points``."""
+    import pandas as pd
+
     p = Path(path)
     where = str(p)
     suffix, gz = _base_suffix(p)
@@ -376,3 +449,67 @@ def write_text(path: str | Path, cloud: PointCloud, *, header: bool | None = Non
         fh.detach()  # leave ``stream`` open: closing it here would close ``raw`` too
         if gz:
             stream.close()  # writes the gzip trailer; a GzipFile does not close its ``fileobj``
+
+
+def _reader_error(path: Path, crs: str | None, what: str):
+    """Raise the whole-file reader's error for a problem found in a chunk (it names the line and the
+    fix); if the whole-file reader accepts the file after all, raise a PointCloudError saying `what`."""
+    read(path, crs=crs)
+    raise PointCloudError(f"{path}: {what}; the chunked reader cannot read it (read_points can: convert the "
+                          "file to .npz)")
+
+
+def _chunk_xyz(df, xyz_cols: tuple[int, int, int], path: Path, crs: str | None, n_before: int) -> np.ndarray:
+    """x, y, z (float64 (n, 3) m) of one parsed chunk; raise (`_reader_error`) for a non-number or NaN/Inf."""
+    import pandas as pd
+
+    cols = [df.iloc[:, i] for i in xyz_cols]
+    if not all(pd.api.types.is_numeric_dtype(c) for c in cols):
+        _reader_error(path, crs, f"a coordinate after point {n_before} is not a number")
+    xyz = np.empty((len(df), 3), dtype=np.float64)
+    for k, c in enumerate(cols):
+        xyz[:, k] = c.to_numpy(dtype=np.float64)
+    if not np.isfinite(xyz).all():
+        _reader_error(path, crs, f"non-finite coordinates after point {n_before}")
+    return xyz
+
+
+def iter_chunks(
+    path: str | Path, *, crs: str | None = None, chunk_points: int = DEFAULT_CHUNK_POINTS
+) -> Iterator[PointCloud]:
+    """The file's x, y, z (float64 metres as written, the file's frame) in chunks of at most
+    ``chunk_points`` rows, in file order, each a :class:`PointCloud` without attributes (``crs`` as in
+    ``read_points``); the values are those :func:`read` returns. Memory: one parsed chunk, roughly 150
+    bytes per point. A bad line in any chunk raises the error :func:`read` gives for the whole file."""
+    import pandas as pd
+
+    p = Path(path)
+    where = str(p)
+    merged = merge_crs(None, crs, where)
+    suffix, gz = _base_suffix(p)
+    layout = _peek(p, gz, suffix == ".pts")
+    ncols = len(layout.first_tokens)
+    names = [h.strip() for h in layout.header] if layout.header is not None else (
+        ["x", "y", "z"] + [f"col{i}" for i in range(3, ncols)])
+    if len(names) < 3 or len(set(names)) != len(names):
+        _reader_error(p, crs, "fewer than 3 or duplicate columns")
+    xi, yi, zi, _ = _resolve(names, where, False)
+    n, checked = 0, False
+    try:
+        with pd.read_csv(p, chunksize=chunk_points, **_csv_options(layout, gz)) as reader:
+            for df in reader:
+                if df.shape[1] != len(names):
+                    _reader_error(p, crs, f"a line after point {n} has {df.shape[1]} columns, not {len(names)}")
+                if not checked and df.isna().to_numpy().any():
+                    # Short lines read as NaN, but so does a legitimate 'nan' attribute: let the whole-file
+                    # reader decide once (it raises naming the line, or accepts the file).
+                    read(p, crs=crs)
+                    checked = True
+                xyz = _chunk_xyz(df, (xi, yi, zi), p, crs, n)
+                n += len(xyz)
+                yield PointCloud(xyz, crs=merged, source=where)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, OSError, EOFError, UnicodeError) as exc:
+        _reader_error(p, crs, f"cannot parse the file ({exc})")
+    if n == 0:
+        raise PointCloudError(f"{where}: no points")
+    _check_count(layout, n, where)
