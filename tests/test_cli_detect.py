@@ -332,3 +332,29 @@ def test_exports_refuse_non_finite_values_and_keep_the_old_file(tmp_path):
             writer(tmp_path / name, bad)
         assert (tmp_path / name).read_bytes() == before
         assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+
+
+@needs_real
+def test_detect_with_a_learned_method(tmp_path, one_torch_thread):
+    """`sonardet detect --method sasa_100 --model ...` runs the learned detector on a survey file like the
+    model-based one: outputs in the input's CRS (here the real R2Sonic line, UTM 10N)."""
+    from test_sasa_model import CLASSES, TINY, make_scene
+
+    from sonardet.detect.sasa import train
+
+    (tmp_path / "scenes").mkdir()
+    scenes = [make_scene(tmp_path / "scenes", f"s{i:04d}", i, CLASSES) for i in range(2)]
+    model_dir = tmp_path / "models" / "sasa_100"
+    train([str(p) for p in scenes], [], {**TINY, "classes": CLASSES}, model_dir)
+    out = tmp_path / "r2sonic.json"
+    rc = main(["detect", "--method", "sasa_100", "--model", str(model_dir / "model.pt"), "--input", str(REAL_FILE),
+               "--crs", "EPSG:32610", "--out", str(out), "--csv", str(tmp_path / "r2sonic.csv")])
+    assert rc == 0
+    doc = json.loads(out.read_text())
+    assert doc["method"] == "sasa_100" and doc["crs"] == "EPSG:32610"
+    for d in doc["detections"]:  # an untrained-for-this-seabed model may find some: they are in UTM
+        assert 5.5e5 < d["box"][0] < 5.6e5 and 4.17e6 < d["box"][1] < 4.19e6
+    # A learned method without its model is refused naming the file and how to make it.
+    rc = main(["detect", "--method", "sasa_50", "--results", str(tmp_path), "--input", str(REAL_FILE),
+               "--out", str(tmp_path / "x.json")])
+    assert rc == 2

@@ -78,7 +78,7 @@ def _recorded_tiled_inputs(xyz, tile_m, overlap_m):
 # ------------------------------------------------------------------------------------------ settings
 def test_survey_settings_take_the_schema_defaults():
     s = survey_settings("line1", {"path": "a.xyz"})
-    assert s == {"name": "line1", "path": "a.xyz", "enabled": True, "crs": None, "method": "ours", "tile_m": 40.0,
+    assert s == {"name": "line1", "path": "a.xyz", "enabled": True, "crs": None, "method": "model_based_ours", "tile_m": 40.0,
                  "overlap_m": 3.0, "chunk_points": 1_000_000}
     # The defaults are those of `sonardet detect` (tile 40 m, overlap 3 m).
     from sonardet.cli import build_parser
@@ -92,10 +92,10 @@ def test_survey_settings_take_the_schema_defaults():
 def test_survey_defaults_are_the_schema_defaults():
     """The survey package keeps its defaults as a constant (it may not import the config layer): they
     must be those the config schema states for a `surveys` entry."""
-    from sonardet.config import load_schema
+    from sonardet.config import read_schema
     from sonardet.survey import SURVEY_DEFAULTS, survey_defaults
 
-    props = load_schema()["properties"]["surveys"]["additionalProperties"]["properties"]
+    props = read_schema()["properties"]["surveys"]["additionalProperties"]["properties"]
     schema = {k: v["default"] for k, v in props.items() if "default" in v}
     assert SURVEY_DEFAULTS == schema and survey_defaults() == schema
     assert all(type(SURVEY_DEFAULTS[k]) is type(v) for k, v in schema.items())
@@ -116,7 +116,7 @@ def test_default_config_runs_the_real_line():
     ({"a": {"crs": "EPSG:32610"}}, "surveys.a: 'path' is a required property"),
     ({"a": {"path": "a.xyz", "tile_m": 0}}, "surveys.a.tile_m"),
     ({"a": {"path": "a.xyz", "overlap_m": -1}}, "surveys.a.overlap_m"),
-    ({"a": {"path": "a.xyz", "method": "sasa_100"}}, "surveys.a.method"),
+    ({"a": {"path": "a.xyz", "method": "detr_100"}}, "surveys.a.method: unknown method 'detr_100'"),
     ({"a": {"path": "a.xyz", "tile": 40}}, "surveys.a.tile: unknown key"),
 ])
 def test_bad_survey_config_names_the_key(bad, key):
@@ -130,7 +130,7 @@ def test_missing_survey_file_is_reported_and_left_out(tmp_path):
     surveys = {"here": {"path": str(tmp_path / "here.xyz")}, "gone": {"path": str(tmp_path / "gone.xyz")},
                "off": {"path": str(tmp_path / "gone.xyz"), "enabled": False}}
     runs, messages = enabled_surveys(surveys)
-    assert list(runs) == ["here"] and runs["here"]["method"] == "ours"
+    assert list(runs) == ["here"] and runs["here"]["method"] == "model_based_ours"
     assert len(messages) == 1
     assert "surveys.gone.path" in messages[0] and "left out" in messages[0]
     assert "surveys.gone.enabled: false" in messages[0]

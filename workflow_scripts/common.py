@@ -9,7 +9,7 @@ import os
 import sys
 
 _SRC = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir, "src"))
-if _SRC not in sys.path:
+if sys.path[0] != _SRC:  # first, before an installed copy (e.g. an editable install of another checkout)
     sys.path.insert(0, _SRC)
 
 from sonardet.workflow import job, job_method, job_resources  # noqa: E402

@@ -63,6 +63,17 @@ def _ablation_checks(cfg: dict) -> list[str]:
     return out
 
 
+def _survey_method_checks(cfg: dict) -> list[str]:
+    """Each survey's method must be one the registry knows."""
+    out = []
+    for name, entry in cfg["surveys"].items():
+        try:
+            methods.get(entry.get("method", "model_based_ours"), cfg)
+        except ValueError as exc:
+            out.append(f"surveys.{name}.method: {exc}")
+    return out
+
+
 def _point_family(point: dict, cfg: dict) -> str:
     """Family of an ablation point's method: a family name or a method of a family."""
     names = {f.name for f in methods.families()}
@@ -118,7 +129,7 @@ def cross_checks(cfg: dict, validate) -> list[str]:
                    f"{ev['dist_thresholds_m']}")
     out += methods.check(cfg)
     if not out:
-        out += _ablation_checks(cfg)
+        out += _ablation_checks(cfg) + _survey_method_checks(cfg)
     out += validate(cfg)
     out += _realism_ablation_checks(cfg)
     if cfg["split"]["n_test"] >= cfg["scenes"]["n_scenes"]:
