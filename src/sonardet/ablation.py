@@ -100,7 +100,7 @@ def run_point(point: dict, scene_npzs: list[str], scene_jsons: list[str], base_p
     out = {"name": point["name"], "method": method, "params": point.get("params", {}),
            "fraction": point.get("fraction"), "n_scenes": len(scene_npzs), "train_time_s": None}
     if method.startswith("model_based_"):
-        from .detect.model_based import detect
+        from .detect.model_based import ModelBasedDetector
         from .sim.scene import load_scene_points
         from .sim.templates import load_templates
 
@@ -108,12 +108,13 @@ def run_point(point: dict, scene_npzs: list[str], scene_jsons: list[str], base_p
         params = {**base_params, **point.get("params", {})}
         objects = {c: load_object(objects_dir / f"{c}.json") for c in classes}
         templates = {c: load_templates(templates_dir / f"{c}.npz") for c in classes}
+        detector = ModelBasedDetector(templates, objects, params, variant)  # class models built once
         dets, secs = {}, []
         for i, p in enumerate(scene_npzs):
             sid = Path(p).stem
             xyz = load_scene_points(p)["xyz"]
             t0 = time.perf_counter()
-            dets[sid], _ = detect(xyz, templates, objects, params, variant)
+            dets[sid], _ = detector(xyz)
             secs.append(time.perf_counter() - t0)
             log.info("%s: scene %s (%d/%d) %.1f s, %d detections", point["name"], sid, i + 1, len(scene_npzs),
                      secs[-1], len(dets[sid]))

@@ -111,7 +111,7 @@ def _run_detect(args) -> int:
     import time
 
     from .config import validate_config
-    from .detect.model_based import detect, resolve_params
+    from .detect.model_based import ModelBasedDetector, resolve_params
     from .detect.tiling import detect_tiled, plan_tiles
     from .io.annotations import to_builtin, validate_detections
     from .io.atomic import atomic_write_text
@@ -134,10 +134,8 @@ def _run_detect(args) -> int:
     lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
     tiles = plan_tiles((lo[0], lo[1], hi[0], hi[1]), args.tile_m, args.overlap_m, footprint)
 
-    def run(points):
-        return detect(points, templates, objects, params, args.variant)
-
     t = time.perf_counter()
+    run = ModelBasedDetector(templates, objects, params, args.variant)  # class models built once, run per tile
     if len(tiles) == 1:
         dets, _ = run(xyz)
         n_tiles = 1
