@@ -22,8 +22,7 @@ with rule_logging(snakemake, "sasa_infer") as log:  # noqa: F821
     for k in ("score_thresh", "nms_mode", "nms_iou", "nms_pre_max", "nms_post_max"):
         if k in cfg["params"]:
             params[k] = cfg["params"][k]
-    dets = infer(smk.input.model, smk.input.scenes, params=params, device=device)
-    timing = dict(infer.last_timing)
+    dets, timing = infer(smk.input.model, smk.input.scenes, params=params, device=device)
     by_stem = {Path(p).stem: p for p in smk.output.detections}
     missing = sorted(set(by_stem) - set(dets))
     if missing:

@@ -127,9 +127,9 @@ def run_point(point: dict, scene_npzs: list[str], scene_jsons: list[str], base_p
             raise ValueError(f"ablation point {point['name']!r}: no training scenes for SASA")
         summary = train(train_npzs, [], params, work_dir / "model", resume=True)
         out["train_time_s"] = float(summary["train_time_s"])
-        dets = infer(work_dir / "model" / "model.pt", scene_npzs,
-                     params={"num_threads": int(threads), "progress": False})
-        secs = [float(infer.last_timing["s_per_scene"])]  # mean inference time (model loaded once)
+        dets, timing = infer(work_dir / "model" / "model.pt", scene_npzs,
+                             params={"num_threads": int(threads), "progress": False})
+        secs = [float(timing["s_per_scene"])]  # mean inference time (model loaded once)
     else:
         raise ValueError(f"ablation point {point['name']!r}: unknown method {method!r}; use one of {METHODS}")
     out.update(_evaluate(gt, dets, classes, evaluation, metas))
