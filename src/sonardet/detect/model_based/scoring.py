@@ -211,7 +211,7 @@ def score_hypothesis(model, views: list, R, t, scene: SceneIndex, params: dict, 
     d = model.distance((scene.pts[cand] - t) @ R)
     inl = d < params["inlier_m"]
     h.cand, h.inl = cand, inl
-    h.rmse_m = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else 1.0
+    h.rmse_m = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else 1.0  # no inlier: 1 m, beyond any rmse_max
     h.upright = up_tilt_rad(model, R) <= np.deg2rad(params["upright_tilt_max_deg"])
     # Coverage against the scene points (seabed included) around the object, in a small local tree.
     local = scene.all_tree_xy.query_ball_point(box[:2], reach + params["coverage_m"])
