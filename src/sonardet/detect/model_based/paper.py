@@ -36,8 +36,8 @@ from ...objects.catalog import canonical_box
 from .ground import seabed
 from .params import per_class
 from .proposals import sliding_windows, window_counts
-from .registration import MIN_RIGID_POINTS, IcpResult, convergence, icp_point_to_point, is_rigid_transform, \
-    point_cloud
+from .registration import (MIN_RIGID_POINTS, IcpResult, convergence, icp_point_to_point, is_rigid_transform,
+                           point_cloud)
 from .scoring import Hypothesis
 
 SCORES = ("rmse", "fitness_rmse", "tight_fitness")

@@ -247,7 +247,7 @@ class TrainedSASA:
         self.device = resolve_device(device)
 
     @classmethod
-    def load(cls, model_path, params: dict | None = None, device=None) -> "TrainedSASA":
+    def load(cls, model_path, params: dict | None = None, device=None) -> TrainedSASA:
         """Load ``model.pt`` (see :func:`load_model` for which keys of ``params`` may differ from the
         model's) and set torch's CPU threads when ``params`` sets ``num_threads``."""
         device = resolve_device(device)
