@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sonardet.detect.model_based import detect
+from sonardet.detect.model_based import ModelBasedDetector
 from sonardet.io.scenes import read_scene_points
 from sonardet.io.templates import read_templates
 from sonardet.objects import read_object
@@ -81,8 +81,9 @@ def main():
     out = {"scenes": ids, "variants": {}}
     for variant in args.variants.split(","):
         rows, dets = [], {}
+        detector = ModelBasedDetector(templates, objects, params[variant], variant)  # class models built once
         for sid in ids:
-            d, st = detect(points[sid], templates, objects, params[variant], variant)
+            d, st = detector(points[sid])
             dets[sid] = d
             rows.append({"scene": sid, "n_points": st["n_points"], "seconds": st["seconds"], "windows": st["windows"],
                          "windows_skipped": st["windows_skipped"], "icp_runs": st["icp_runs"],
@@ -110,11 +111,13 @@ def main():
         out["variants"][variant] = {"summary": summary, "scenes": rows}
     if not args.no_skip_compare and ids:
         sid = ids[0]
+        with_skip = ModelBasedDetector(templates, objects, params["paper"], "paper")
+        without_skip = ModelBasedDetector(templates, objects, dict(params["paper"], skip_empty_windows=False), "paper")
         t0 = time.perf_counter()
-        _, st_skip = detect(points[sid], templates, objects, params["paper"], "paper")
+        _, st_skip = with_skip(points[sid])
         t_skip = time.perf_counter() - t0
         t0 = time.perf_counter()
-        _, st_all = detect(points[sid], templates, objects, dict(params["paper"], skip_empty_windows=False), "paper")
+        _, st_all = without_skip(points[sid])
         t_all = time.perf_counter() - t0
         saved = t_all - t_skip
         print(f"[skip] {sid}, paper: {st_all['windows']} windows; skipping {st_skip['windows_skipped']} with too few "

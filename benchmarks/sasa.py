@@ -87,9 +87,9 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
             train_scenes: int, q) -> None:
     import torch
 
-    from sonardet.detect.sasa import DEFAULTS, PAPER, SASADetector, resolve_params
+    from sonardet.detect.sasa import DEFAULTS, PAPER, SASADetector, TrainedSASA, resolve_params
     from sonardet.detect.sasa.data import prepare_scene
-    from sonardet.detect.sasa.trainer import _detect_prepared, _make_batch, peak_memory_mb, resolve_device
+    from sonardet.detect.sasa.trainer import _make_batch, peak_memory_mb, resolve_device
 
     torch.set_num_threads(threads)
     base = {"DEFAULTS": DEFAULTS, "PAPER": PAPER}[name]
@@ -122,10 +122,11 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
             times.append(time.perf_counter() - t)
     step_s = float(np.median(times))
     inf = []
+    trained = TrainedSASA(model, params, dev)
     for i, s in enumerate(scenes):
         sync()
         t = time.perf_counter()
-        _detect_prepared(model, s, params, dev)
+        trained.detect_scene(s)
         sync()
         if i > 0 or len(scenes) == 1:
             inf.append(time.perf_counter() - t)

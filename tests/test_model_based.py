@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sonardet.config import validate_config
-from sonardet.detect.model_based import DEFAULTS, PAPER, detect, resolve_params
+from sonardet.detect.model_based import DEFAULTS, DESCRIPTIONS, PAPER, ModelBasedDetector, detect, resolve_params
 from sonardet.detect.model_based.proposals import sliding_windows, window_counts
 from sonardet.detect.model_based.registration import icp_point_to_point, icp_scene_to_model, SurfaceTarget
 from sonardet.geometry import quat_from_yaw, quat_to_matrix
@@ -201,6 +201,40 @@ def test_deterministic(objects, templates, sensor):
     assert a == b
 
 
+@pytest.mark.parametrize("variant", ["ours", "paper"])
+def test_detector_object_is_reusable_and_equals_detect(objects, templates, sensor, variant):
+    """A detector built once gives, call after call and whatever it ran on before, the detections of
+    `detect` on each cloud (no state carried from one cloud to the next)."""
+    cone, ring = objects["reef_cone"], objects["reef_ring"]
+    clouds = [survey([(cone, *place(cone, 6.0, 6.0, 0.0))], sensor),
+              survey([(ring, *place(ring, 5.0, 7.0, 0.0))], sensor, seed=3)]
+    detector = ModelBasedDetector(templates, objects, variant=variant)
+    assert detector.classes == list(objects) and detector.build_seconds > 0
+    for xyz in clouds + clouds[::-1]:
+        dets, stats = detector(xyz)
+        assert dets == detect(xyz, templates, objects, variant=variant)[0]
+        assert stats["seconds"]["models"] == 0.0 and stats["variant"] == variant
+
+
+def test_tumbled_rotations_are_proper_and_from_the_parameters(objects, templates):
+    from sonardet.detect.model_based.detector import class_models
+    from sonardet.detect.model_based.ours import tumbled_rotations
+
+    models = class_models(templates, {c: objects[c] for c in ("reef_cone", "tetrapod_s")}, DEFAULTS)
+    tet = tumbled_rotations(models["tetrapod_s"], DEFAULTS)
+    # upright yaws, then tilts x azimuths x yaws
+    assert len(tet) == 2 + 2 * 6 * 2
+    cone = tumbled_rotations(models["reef_cone"], DEFAULTS)
+    assert len(cone) > 0 and len(cone) % DEFAULTS["tumbled_azimuths_n"] == 0
+    fewer = tumbled_rotations(models["reef_cone"], {**DEFAULTS, "tumbled_azimuths_n": 4})
+    assert len(fewer) == len(cone) // 2
+    for R in tet + cone:
+        assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
+    tilts = np.degrees(np.arccos(np.clip([R[2, 2] for R in cone], -1, 1)))
+    lo, hi = DEFAULTS["tumbled_stable_tilt_range_deg"]
+    assert np.all((tilts >= lo - 1e-6) & (tilts <= hi + 1e-6))
+
+
 def test_empty_nan_and_bad_input(objects, templates):
     with pytest.warns(UserWarning, match="nothing to detect"):
         dets, stats = detect(np.zeros((0, 3)), templates, objects)
@@ -224,6 +258,14 @@ def test_missing_template_class_is_a_clear_error(objects, templates):
     partial = {c: t for c, t in templates.items() if c != "reef_ring"}
     with pytest.raises(ValueError, match="no template scans for class 'reef_ring'"):
         detect(np.zeros((10, 3)), partial, objects)
+
+
+def test_every_parameter_is_described():
+    for variant in (DEFAULTS, PAPER):
+        for k in variant:
+            unit, meaning = DESCRIPTIONS[k]
+            assert unit and meaning, k
+    assert set(DESCRIPTIONS) == set(DEFAULTS) | set(PAPER)
 
 
 def test_params_defaults_and_overrides():

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 import torch
 
-from sonardet.detect.sasa import ConfigMismatchError, SASADetector, detect_points, infer, resolve_params, train
+from sonardet.detect.sasa import (ConfigMismatchError, SASADetector, TrainedSASA, detect_points, infer, resolve_params,
+                                  train)
 from sonardet.detect.sasa.box_coder import PointBinResidualCoder
 from sonardet.detect.sasa.data import PaddingWarning, augment, collate, prepare_scene, sample_points
 from sonardet.detect.sasa.losses import box_corners
@@ -168,7 +169,8 @@ def test_overfits_two_small_scenes(tmp_path):
               "n_points": 1024, "sa_npoints": [256, 128, 64]}
     summary = train(paths, [], params, tmp_path / "run", resume=False)
     assert summary["steps"] == 200
-    dets = infer(tmp_path / "run" / "model.pt", paths, {**params})
+    dets, timing = infer(tmp_path / "run" / "model.pt", paths, {**params})
+    assert timing["n_scenes"] == 2 and timing["s_per_scene"] > 0 and timing["device"] == "cpu"
     m = evaluate_scenes(dets, paths, resolve_params(params), dist_thresholds_m=(0.5, 1.0))
     assert m["mAP"]["1.0"] >= 0.9, m["mAP"]
     assert m["mAP"]["0.5"] >= 0.75, m["mAP"]
@@ -207,13 +209,19 @@ def test_checkpoint_from_other_config_is_refused(tmp_path):
     with pytest.raises(ConfigMismatchError, match="train_scenes"):
         train(other, [], params, tmp_path / "run", resume=True)
     # inference may change inference keys (training-only keys are ignored), not network/input keys
-    dets = infer(tmp_path / "run" / "model.pt", paths, {**params, "score_thresh": 0.0, "epochs": 9})
+    dets, _ = infer(tmp_path / "run" / "model.pt", paths, {**params, "score_thresh": 0.0, "epochs": 9})
     # an in-memory cloud (a user's survey) gives the same detections as the scene file
     xyz = np.load(paths[0])["xyz"]
     same = detect_points(tmp_path / "run" / "model.pt", xyz, {"score_thresh": 0.0}, scene_id="c0")
     assert len(same) == len(dets["c0"]) > 0
     assert np.allclose([d["box"] for d in same], [d["box"] for d in dets["c0"]])
     assert all(abs(d["box"][0] - 500000.0) < 50 for d in same)  # scene frame (UTM-like), not local
+    # a model loaded once and called per cloud gives the same, call after call
+    sasa = TrainedSASA.load(tmp_path / "run" / "model.pt", {"score_thresh": 0.0})
+    for _ in range(2):
+        again, stats = sasa(xyz, "c0")
+        assert again == same and stats["n_detections"] == len(same) and stats["n_points"] == len(xyz)
+    assert sasa.detect_file(paths[0]) == ("c0", dets["c0"])
     with pytest.raises(ConfigMismatchError, match="sa_npoints"):
         infer(tmp_path / "run" / "model.pt", paths, {**params, "sa_npoints": [64, 32, 16]})
     # a finished checkpoint with the same settings resumes to the end without new steps

@@ -291,13 +291,13 @@ def _survey(objects, sensor, extent_m: float):
 def whole_and_tiled(models):
     """The 120 m survey detected once as a whole (local coordinates) and once in 3 x 3 tiles of 40 m
     with 3 m overlap (UTM coordinates, shifted back): (truth, whole, tiled, per-tile rows)."""
-    from sonardet.detect.model_based import detect
+    from sonardet.detect.model_based import ModelBasedDetector
 
     objects, templates, sensor = models
     xyz, truth = _survey(objects, sensor, EXTENT_M)
-    whole, _ = detect(xyz, templates, objects)
-    tiled, rows = detect_tiled(xyz + UTM, lambda p: detect(p, templates, objects), 40.0, 3.0, progress=False,
-                               min_overlap_m=2.7)
+    detector = ModelBasedDetector(templates, objects)
+    whole, _ = detector(xyz)
+    tiled, rows = detect_tiled(xyz + UTM, detector, 40.0, 3.0, progress=False, min_overlap_m=2.7)
     for d in tiled:
         d["box"][:3] = list(np.asarray(d["box"][:3]) - UTM)
     return truth, whole, tiled, rows

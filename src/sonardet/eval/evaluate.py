@@ -120,6 +120,51 @@ def _tp_errors(pooled, match, conf, min_recall, yaw_scored, yaw_period_rad):
     return averaged, plain, low_recall
 
 
+def _yaw_periods(classes: list[str], yaw_periods_rad: dict | None) -> dict[str, float]:
+    """class -> yaw period (rad): 2 pi unless `yaw_periods_rad` sets one in (0, 2 pi] (others ignored)."""
+    periods = {c: 2.0 * math.pi for c in classes}
+    for c, v in (yaw_periods_rad or {}).items():
+        if c in periods:
+            if not (math.isfinite(float(v)) and 0.0 < float(v) <= 2.0 * math.pi):
+                raise ValueError(f"yaw_periods_rad[{c!r}] must be in (0, 2 pi], got {v!r}")
+            periods[c] = float(v)
+    return periods
+
+
+def _evaluate_class(pooled, ths: list[float], headline_m: float, min_recall: float, min_precision: float,
+                    yaw_scored: bool, yaw_period_rad: float, n_invisible: int) -> tuple[dict, dict]:
+    """One class's entry of `per_class` and its PR curves {threshold_key: {recall, precision, confidence}}:
+    AP and TP count per centre-distance threshold (m), TP errors at `headline_m`."""
+    aps, n_tp, curves = {}, {}, {}
+    tp_err = tp_plain = None
+    low_recall = False
+    for th in ths:
+        m = match_class(pooled, th)
+        rec, prec, conf = interpolated_pr(m.is_tp, m.scores, pooled.n_gt)
+        key = threshold_key(th)
+        aps[key] = average_precision(prec, min_recall, min_precision)
+        n_tp[key] = m.n_tp
+        curves[key] = {"recall": rec, "precision": prec, "confidence": conf}
+        if th == headline_m:
+            tp_err, tp_plain, low_recall = _tp_errors(pooled, m, conf, min_recall, yaw_scored, yaw_period_rad)
+    entry = {
+        "AP": aps,
+        "n_tp": n_tp,
+        "n_pred": pooled.n_pred,
+        "n_gt": pooled.n_gt,
+        "n_gt_invisible": n_invisible,
+        "yaw_period_rad": yaw_period_rad if yaw_scored else None,
+        "tp_errors": tp_err,
+        "tp_errors_mean_over_matches": tp_plain,
+        "tp_errors_low_recall": bool(low_recall),
+        "yaw_scored": yaw_scored,
+        "no_gt": pooled.n_gt == 0,
+        "no_predictions": pooled.n_pred == 0,
+        "no_tp": n_tp[threshold_key(headline_m)] == 0,
+    }
+    return entry, curves
+
+
 def evaluate(gt: dict, dets: dict, classes, dist_thresholds_m, headline_m: float, symmetric_classes=(),
              min_recall: float = 0.1, min_precision: float = 0.1, yaw_periods_rad: dict | None = None) -> dict:
     """Evaluate detections against ground truth, nuScenes style. Returns a dict (see below).
@@ -152,47 +197,14 @@ def evaluate(gt: dict, dets: dict, classes, dist_thresholds_m, headline_m: float
     classes, ths = _check_settings(classes, dist_thresholds_m, headline_m, min_recall, min_precision)
     headline_m = float(headline_m)
     sym = [c for c in classes if c in set(symmetric_classes)]
-    periods = {c: 2.0 * math.pi for c in classes}
-    for c, v in (yaw_periods_rad or {}).items():
-        if c in periods:
-            if not (math.isfinite(float(v)) and 0.0 < float(v) <= 2.0 * math.pi):
-                raise ValueError(f"yaw_periods_rad[{c!r}] must be in (0, 2 pi], got {v!r}")
-            periods[c] = float(v)
+    periods = _yaw_periods(classes, yaw_periods_rad)
     scenes, gt_vis, det_clean, n_invisible = _prepare(gt, dets, classes)
 
     per_class, pr_curves = {}, {}
     for cls in classes:
         pooled = pool_class(gt_vis, det_clean, cls, scenes)
-        aps, n_tp, curves = {}, {}, {}
-        tp_err = tp_plain = None
-        low_recall = False
-        for th in ths:
-            m = match_class(pooled, th)
-            rec, prec, conf = interpolated_pr(m.is_tp, m.scores, pooled.n_gt)
-            key = threshold_key(th)
-            aps[key] = average_precision(prec, min_recall, min_precision)
-            n_tp[key] = m.n_tp
-            curves[key] = {"recall": rec, "precision": prec, "confidence": conf}
-            if th == headline_m:
-                tp_err, tp_plain, low_recall = _tp_errors(pooled, m, conf, min_recall, cls not in sym,
-                                                          periods[cls])
-        pr_curves[cls] = curves
-        hk = threshold_key(headline_m)
-        per_class[cls] = {
-            "AP": aps,
-            "n_tp": n_tp,
-            "n_pred": pooled.n_pred,
-            "n_gt": pooled.n_gt,
-            "n_gt_invisible": n_invisible[cls],
-            "yaw_period_rad": None if cls in sym else periods[cls],
-            "tp_errors": tp_err,
-            "tp_errors_mean_over_matches": tp_plain,
-            "tp_errors_low_recall": bool(low_recall),
-            "yaw_scored": cls not in sym,
-            "no_gt": pooled.n_gt == 0,
-            "no_predictions": pooled.n_pred == 0,
-            "no_tp": n_tp[hk] == 0,
-        }
+        per_class[cls], pr_curves[cls] = _evaluate_class(pooled, ths, headline_m, min_recall, min_precision,
+                                                         cls not in sym, periods[cls], n_invisible[cls])
 
     m_ap = {threshold_key(t): float(np.mean([per_class[c]["AP"][threshold_key(t)] for c in classes])) for t in ths}
     return {

@@ -185,6 +185,86 @@ def _stats(d: np.ndarray) -> dict[str, Any]:
     return out
 
 
+def _check_noise_settings(ransac_distance_m: float, ransac_n: int, iterations: int, z_trim: float) -> None:
+    """Raise ValueError for a non-positive distance (m), fewer than 3 points per sample, no iteration
+    or a non-positive trimming threshold (standard deviations)."""
+    if not (math.isfinite(ransac_distance_m) and ransac_distance_m > 0):
+        raise ValueError(f"ransac_distance_m must be a positive number of metres, got {ransac_distance_m!r}")
+    if int(ransac_n) < 3:
+        raise ValueError(f"ransac_n must be >= 3 (points per plane sample), got {ransac_n!r}")
+    if int(iterations) < 1:
+        raise ValueError(f"iterations must be >= 1, got {iterations!r}")
+    if not (math.isfinite(z_trim) and z_trim > 0):
+        raise ValueError(f"z_trim must be a positive number of standard deviations, got {z_trim!r}")
+
+
+def _patch_points(pts: np.ndarray, patch: dict | None, label: str) -> np.ndarray:
+    """The points (M, 3) of `pts` inside `patch` (all without one); at least MIN_POINTS of them."""
+    sel = pts if patch is None else pts[select_patch(pts, patch)]
+    if len(sel) < MIN_POINTS:
+        raise ValueError(f"{label}: {len(sel)} points, need at least {MIN_POINTS} to characterise noise")
+    return sel
+
+
+def _is_degenerate(singular_values: np.ndarray) -> bool:
+    """Whether points with these singular values (about their centroid) are collinear or coincident."""
+    s = singular_values
+    return bool(s[1] <= 1e-9 * max(s[0], np.finfo(float).tiny))
+
+
+def _ransac_plane(local: np.ndarray, ransac_distance_m: float, ransac_n: int, iterations: int, seed: int,
+                  label: str):
+    """RANSAC plane of local-frame points (M, 3), m (Open3D ``segment_plane``, seeded): (plane model
+    [a, b, c, d], boolean inlier mask (M,)). Raises when it finds fewer than 3 inliers."""
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(local))
+    o3d.utility.random.seed(int(seed))
+    model, inliers = pcd.segment_plane(distance_threshold=float(ransac_distance_m), ransac_n=int(ransac_n),
+                                       num_iterations=int(iterations))
+    inl = np.zeros(len(local), dtype=bool)
+    inl[np.asarray(inliers, dtype=np.int64)] = True
+    if int(inl.sum()) < 3:
+        raise ValueError(f"{label}: RANSAC found only {int(inl.sum())} inliers; increase ransac_distance_m")
+    return model, inl
+
+
+def _refine_plane(local: np.ndarray, inl: np.ndarray, ransac_distance_m: float, label: str):
+    """Least-squares refinement of a plane on its inliers, re-selecting the points within
+    `ransac_distance_m` (m) of the refined plane until they no longer change (at most
+    `_MAX_REFINE_ROUNDS` rounds). Returns (unit normal, n_z >= 0; centroid (local frame, m); number of
+    points of the last fit)."""
+    for _ in range(_MAX_REFINE_ROUNDS):
+        normal, centroid, s = _svd_plane(local[inl])
+        n_fit = int(inl.sum())
+        if _is_degenerate(s):
+            raise ValueError(f"{label}: the plane inliers are collinear; increase ransac_distance_m")
+        new = np.abs((local - centroid) @ normal) <= ransac_distance_m
+        if new.sum() < 3 or np.array_equal(new, inl):
+            break
+        inl = new
+    return normal, centroid, n_fit
+
+
+def _trimmed(dist: np.ndarray, z_trim: float) -> np.ndarray:
+    """Boolean mask of the distances whose z-score (mean, ddof=0 std) is within +-z_trim (all if constant)."""
+    if float(np.std(dist)) > 0:
+        return np.abs(stats.zscore(dist)) <= z_trim
+    return np.ones(len(dist), dtype=bool)
+
+
+def _plane_json(normal: np.ndarray, centroid: np.ndarray) -> dict:
+    """The plane as JSON: normal, d, centroid (local frame), slope (deg) and dip azimuth (deg clockwise
+    from +y, None on a level plane)."""
+    horiz = float(np.hypot(normal[0], normal[1]))
+    return {
+        "frame": "local (xyz - origin)",
+        "normal": [float(v) for v in normal],
+        "d": -float(normal @ centroid),
+        "centroid": [float(v) for v in centroid],
+        "slope_deg": math.degrees(math.atan2(horiz, abs(float(normal[2])))),
+        "dip_azimuth_deg": None if horiz == 0 else math.degrees(math.atan2(normal[0], normal[1])) % 360.0,
+    }
+
+
 def characterize_noise(
     xyz,
     patch: dict | None = None,
@@ -232,59 +312,16 @@ def characterize_noise(
     if patch is not None and not name:
         name = str(patch.get("name", "")) if isinstance(patch, dict) else ""
     label = _describe(patch, name)
-    if not (math.isfinite(ransac_distance_m) and ransac_distance_m > 0):
-        raise ValueError(f"ransac_distance_m must be a positive number of metres, got {ransac_distance_m!r}")
-    if int(ransac_n) < 3:
-        raise ValueError(f"ransac_n must be >= 3 (points per plane sample), got {ransac_n!r}")
-    if int(iterations) < 1:
-        raise ValueError(f"iterations must be >= 1, got {iterations!r}")
-    if not (math.isfinite(z_trim) and z_trim > 0):
-        raise ValueError(f"z_trim must be a positive number of standard deviations, got {z_trim!r}")
-
-    mask = np.ones(len(pts), dtype=bool) if patch is None else select_patch(pts, patch)
-    sel = pts[mask]
-    if len(sel) < MIN_POINTS:
-        raise ValueError(f"{label}: {len(sel)} points, need at least {MIN_POINTS} to characterise noise")
-
+    _check_noise_settings(ransac_distance_m, ransac_n, iterations, z_trim)
+    sel = _patch_points(pts, patch, label)
     origin = _local_origin(sel)
     local = sel - origin
-    _, _, s_all = _svd_plane(local)
-    if s_all[1] <= 1e-9 * max(s_all[0], np.finfo(float).tiny):
+    if _is_degenerate(_svd_plane(local)[2]):
         raise ValueError(f"{label}: the {len(sel)} points are collinear or coincident; no plane to fit")
-
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(local))
-    o3d.utility.random.seed(int(seed))
-    model, inliers = pcd.segment_plane(distance_threshold=float(ransac_distance_m), ransac_n=int(ransac_n),
-                                       num_iterations=int(iterations))
-    inl = np.zeros(len(local), dtype=bool)
-    inl[np.asarray(inliers, dtype=np.int64)] = True
-    n_ransac = int(inl.sum())
-    if n_ransac < 3:
-        raise ValueError(f"{label}: RANSAC found only {n_ransac} inliers; increase ransac_distance_m")
-
-    for _ in range(_MAX_REFINE_ROUNDS):
-        normal, centroid, s = _svd_plane(local[inl])
-        n_fit = int(inl.sum())
-        if s[1] <= 1e-9 * max(s[0], np.finfo(float).tiny):
-            raise ValueError(f"{label}: the plane inliers are collinear; increase ransac_distance_m")
-        new = np.abs((local - centroid) @ normal) <= ransac_distance_m
-        if new.sum() < 3 or np.array_equal(new, inl):
-            break
-        inl = new
-    d_plane = -float(normal @ centroid)
+    model, inl = _ransac_plane(local, ransac_distance_m, ransac_n, iterations, seed, label)
+    normal, centroid, n_fit = _refine_plane(local, inl, ransac_distance_m, label)
     dist = (local - centroid) @ normal
-
-    std0 = float(np.std(dist))
-    if std0 > 0:
-        z = stats.zscore(dist)
-        kept = np.abs(z) <= z_trim
-    else:
-        kept = np.ones(len(dist), dtype=bool)
-
-    horiz = float(np.hypot(normal[0], normal[1]))
-    slope = math.degrees(math.atan2(horiz, abs(float(normal[2]))))
-    azimuth = None if horiz == 0 else math.degrees(math.atan2(normal[0], normal[1])) % 360.0
-
+    kept = _trimmed(dist, z_trim)
     return {
         "name": name,
         "patch": _patch_json(patch),
@@ -293,21 +330,14 @@ def characterize_noise(
         "n_trimmed": int((~kept).sum()),
         "z_trim": float(z_trim),
         "origin": [float(v) for v in origin],
-        "plane": {
-            "frame": "local (xyz - origin)",
-            "normal": [float(v) for v in normal],
-            "d": d_plane,
-            "centroid": [float(v) for v in centroid],
-            "slope_deg": slope,
-            "dip_azimuth_deg": azimuth,
-        },
+        "plane": _plane_json(normal, centroid),
         "ransac": {
             "distance_m": float(ransac_distance_m),
             "n": int(ransac_n),
             "iterations": int(iterations),
             "seed": int(seed),
             "plane_model": [float(v) for v in model],
-            "n_inliers": n_ransac,
+            "n_inliers": int(inl.sum()),
             "n_inliers_refined": n_fit,
         },
         "before": _stats(dist),

@@ -50,13 +50,9 @@ class ModelBased(MethodFamily):
         resolve_params(method.settings["params"], method.settings["variant"])
 
     def load(self, method: Method, resources: Resources):
-        from ..detect.model_based import detect
+        """A ModelBasedDetector: the class models are built once (its `build_seconds`), then it runs on
+        each point cloud."""
+        from ..detect.model_based import ModelBasedDetector
 
-        variant, params = method.settings["variant"], method.settings["params"]
-        resolve_params(params, variant)  # unknown keys fail before any work
-        objects, templates = resources.objects, resources.templates
-
-        def detector(xyz):
-            return detect(xyz, templates, objects, params, variant)
-
-        return detector
+        return ModelBasedDetector(resources.templates, resources.objects, method.settings["params"],
+                                  method.settings["variant"])

@@ -101,23 +101,17 @@ class Sasa(MethodFamily):
         return params
 
     def load(self, method: Method, resources: Resources):
-        from ..detect.sasa import detect_points
+        """The trained model (TrainedSASA), loaded once, then called on each point cloud."""
+        from ..detect.sasa import TrainedSASA
 
-        params = self._inference_params(method, resources)
-        device = self._device(method, resources)
-
-        def detector(xyz):
-            dets = detect_points(resources.model_path, xyz, params=params, device=device)
-            return dets, {"seconds": {"total": float("nan")}}
-
-        return detector
+        return TrainedSASA.load(resources.model_path, self._inference_params(method, resources),
+                                self._device(method, resources))
 
     def detect_dataset(self, method: Method, resources: Resources, scene_paths) -> tuple[dict, dict]:
         from ..detect.sasa import infer
 
-        dets = infer(resources.model_path, list(scene_paths), params=self._inference_params(method, resources),
+        return infer(resources.model_path, list(scene_paths), params=self._inference_params(method, resources),
                      device=self._device(method, resources))
-        return dets, dict(infer.last_timing)
 
     def train(self, method: Method, train_paths, val_paths, out_dir, resources: Resources) -> dict:
         from ..detect.sasa import ConfigMismatchError, train

@@ -1,4 +1,5 @@
-"""Public entry point of the model-based (training-free) detector: :func:`detect`.
+"""Public entry points of the model-based (training-free) detector: :class:`ModelBasedDetector` (class
+models built once, then called per point cloud) and :func:`detect` (one call, one cloud).
 
 Input: a float64 point cloud (N,3) in metres (scene frame or survey CRS, z up), the template scans
 (`sonardet.io.templates.TemplateViews`) and the object models (`sonardet.objects.ObjectInfo`) of each
@@ -15,7 +16,6 @@ per-stage seconds).
 
 from __future__ import annotations
 
-import hashlib
 import time
 import warnings
 
@@ -24,16 +24,15 @@ import open3d as o3d
 
 from ...io.origin import choose_origin, finite_xyz
 from .models import ClassModel, build_class_model
-from .ours import detect_ours
+from .ours import detect_ours, prepare_classes
 from .paper import detect_paper
 from .params import resolve_params
 
-_MODEL_CACHE: dict = {}
 _STAGES = ("ground", "models", "proposals", "registration", "scoring", "selection")
 
 
 def new_stats(variant: str) -> dict:
-    """An empty statistics dict (what `detect` returns next to the detections)."""
+    """An empty statistics dict (what a detector call returns next to the detections; seconds in s)."""
     return {
         "variant": variant, "n_points": 0, "n_candidate_points": 0, "windows": 0, "windows_skipped": 0,
         "icp_runs": 0, "icp_runs_by_kind": {}, "icp_declined": 0, "hypotheses": 0, "refits": 0,
@@ -42,17 +41,9 @@ def new_stats(variant: str) -> dict:
     }
 
 
-def _digest(*arrays) -> str:
-    h = hashlib.sha1()
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(str(a.shape).encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
 def class_models(templates: dict, objects: dict, p: dict) -> dict[str, ClassModel]:
-    """Build (or fetch from a process cache) the ClassModel of each class in `objects`.
+    """The ClassModel (canonical frame, m) of each class in `objects`, built from its template scans
+    and mesh with the resolved parameters `p` (surface_spacing_m; seed of the surface sampling).
 
     Raises ValueError when a class has no template views or its templates belong to another class.
     """
@@ -66,24 +57,104 @@ def class_models(templates: dict, objects: dict, p: dict) -> dict[str, ClassMode
             raise ValueError(f"templates[{cls!r}] holds scans of class {tv.cls!r}")
         if len(tv.xyz) == 0 or tv.n_views == 0:
             raise ValueError(f"template scans of class {cls!r} hold no points")
-        key = (cls, _digest(obj.mesh.vertices, obj.mesh.faces, tv.xyz, tv.view), p["surface_spacing_m"],
-               p["template_voxel_m"], p["seed"])
-        if key not in _MODEL_CACHE:
-            o3d.utility.random.seed(int(p["seed"]))
-            _MODEL_CACHE[key] = build_class_model(tv, obj, p["surface_spacing_m"], p["template_voxel_m"])
-        out[cls] = _MODEL_CACHE[key]
+        o3d.utility.random.seed(int(p["seed"]))
+        out[cls] = build_class_model(tv, obj, p["surface_spacing_m"])
     return out
+
+
+def _detection(h, origin: np.ndarray, variant: str) -> dict | None:
+    """One output detection (input frame) of a scored hypothesis (local frame), None if not finite."""
+    if not (np.all(np.isfinite(h.box)) and np.all(np.isfinite(h.t)) and np.isfinite(h.score)):
+        return None
+    box = np.asarray(h.box, dtype=np.float64).copy()
+    box[:3] += origin
+    return {
+        "cls": h.cls,
+        "box": [float(v) for v in box],
+        "pose": {"t": [float(v) for v in h.t + origin], "q": [float(v) for v in h.q]},
+        "score": float(h.score),
+        "extras": {"rmse_m": float(h.rmse_m), "fitness": float(h.fitness), "f_t": float(h.f_t),
+                   "f_s": float(h.f_s), "accepted": bool(getattr(h, "accepted", True)),
+                   "round": int(h.round), "upright": bool(h.upright), "variant": variant},
+    }
+
+
+class ModelBasedDetector:
+    """The model-based detector of one variant for a set of classes, ready to run on point clouds.
+
+    templates: class -> TemplateViews (canonical-frame template scans). objects: class -> ObjectInfo
+    (meshes, symmetry; the classes to detect are the keys of `objects`, in that order). params:
+    overrides of the variant's defaults (`params.DEFAULTS` for 'ours', `params.PAPER` for 'paper');
+    unknown keys raise. variant: 'ours' or 'paper'.
+
+    The class models (mesh surface samples, ray-casting scenes) and, for 'ours', the per-class data
+    derived from them (ICP targets, BEV kernels, tumbled rotations, thinned template views) are built
+    here once; `build_seconds` says how long that took (s). Calling the detector on a cloud
+    (`detector(xyz)`) runs the pipeline; the same cloud gives the same detections on every call.
+    Raises ValueError for an unknown variant or parameter, no classes, or a class without templates.
+    """
+
+    def __init__(self, templates: dict, objects: dict, params: dict | None = None, variant: str = "ours"):
+        t = time.perf_counter()
+        self.variant = variant
+        self.params = resolve_params(params, variant)
+        if not objects:
+            raise ValueError("objects is empty: give at least one class to detect")
+        self.models = class_models(templates, objects, self.params)
+        self.ours_classes = prepare_classes(self.models, self.params) if variant == "ours" else None
+        self.build_seconds = time.perf_counter() - t
+
+    @property
+    def classes(self) -> list[str]:
+        """The classes this detector looks for."""
+        return list(self.models)
+
+    def __call__(self, xyz: np.ndarray) -> tuple[list[dict], dict]:
+        """Detect objects in a point cloud xyz (N,3) float64 (m; scene/local frame or a survey CRS,
+        shifted internally if large). Returns (detections, stats), see :func:`detect`; stats' seconds
+        cover this call only (models: 0, the detector was built before).
+
+        An empty cloud gives no detections and a warning; NaN/Inf points or a wrong shape raise ValueError.
+        """
+        t_all = time.perf_counter()
+        p = self.params
+        stats = new_stats(self.variant)
+        a = finite_xyz(xyz)
+        stats["n_points"] = int(len(a))
+        if len(a) < 3:
+            warnings.warn(f"model-based detection on a cloud of {len(a)} point(s): nothing to detect", stacklevel=2)
+            stats["seconds"]["total"] = time.perf_counter() - t_all
+            return [], stats
+        origin = choose_origin(a)
+        local = a - origin
+        o3d.utility.random.seed(int(p["seed"]))
+        # One Open3D thread: ICP on a few hundred points is faster without OpenMP, and a single thread
+        # sums in a fixed order, so the same input gives the same bytes.
+        threads = o3d.utility.get_max_threads()
+        o3d.utility.set_max_threads(1)
+        try:
+            if self.variant == "ours":
+                hyps = detect_ours(local, self.ours_classes, p, stats)
+            else:
+                hyps = detect_paper(local, self.models, p, stats)
+        finally:
+            o3d.utility.set_max_threads(threads)
+        dets = [d for d in (_detection(h, origin, self.variant) for h in hyps) if d is not None]
+        dets.sort(key=lambda d: -d["score"])
+        stats["origin"] = [float(v) for v in origin]
+        stats["n_detections"] = len(dets)
+        stats["seconds"]["total"] = time.perf_counter() - t_all
+        return dets, stats
 
 
 def detect(xyz: np.ndarray, templates: dict, objects: dict, params: dict | None = None,
            variant: str = "ours") -> tuple[list[dict], dict]:
-    """Detect reef elements in a point cloud with the model-based pipeline.
+    """Detect reef elements in one point cloud with the model-based pipeline: builds a
+    :class:`ModelBasedDetector` and runs it once (to run one setting on many clouds, build the
+    detector once and call it per cloud).
 
     xyz: (N,3) float64 points (m), scene/local frame or a survey CRS (shifted internally if large).
-    templates: class -> TemplateViews (canonical-frame template scans). objects: class -> ObjectInfo
-    (meshes, symmetry; the classes to detect are the keys of `objects`). params: overrides of the
-    variant's defaults (`params.DEFAULTS` for 'ours', `params.PAPER` for 'paper'); unknown keys raise.
-    variant: 'ours' or 'paper'.
+    templates, objects, params, variant: see :class:`ModelBasedDetector`.
 
     Returns (detections, stats): detections sorted by descending score, each {cls, box [x,y,z,l,w,h,yaw],
     pose {t, q (w,x,y,z)}, score, extras {rmse_m, fitness, f_t, f_s, accepted, round, upright, variant}};
@@ -93,53 +164,12 @@ def detect(xyz: np.ndarray, templates: dict, objects: dict, params: dict | None 
     (too few points / too low), icp_runs (ICP calls; icp_runs_by_kind splits them), icp_declined
     (degenerate input), hypotheses, refits, accepted_per_round, replaced, proposals_repeated,
     proposals_outcompeted (ours), n_detections, origin (the local origin used, input frame), seconds
-    {ground, models, proposals, registration, scoring, selection, total}.
+    {ground, models (building the detector), proposals, registration, scoring, selection, total}.
     An empty cloud gives no detections and a warning; NaN/Inf points, a wrong shape, an unknown
     variant or parameter, or a class without templates raise ValueError.
     """
-    t_all = time.perf_counter()
-    p = resolve_params(params, variant)
-    stats = new_stats(variant)
-    if not objects:
-        raise ValueError("objects is empty: give at least one class to detect")
-    a = finite_xyz(xyz)
-    t = time.perf_counter()
-    models = class_models(templates, objects, p)
-    stats["seconds"]["models"] += time.perf_counter() - t
-    stats["n_points"] = int(len(a))
-    if len(a) < 3:
-        warnings.warn(f"model-based detection on a cloud of {len(a)} point(s): nothing to detect", stacklevel=2)
-        stats["seconds"]["total"] = time.perf_counter() - t_all
-        return [], stats
-    origin = choose_origin(a)
-    local = a - origin
-    o3d.utility.random.seed(int(p["seed"]))
-    run = detect_ours if variant == "ours" else detect_paper
-    # One Open3D thread: ICP on a few hundred points is faster without OpenMP, and a single thread
-    # sums in a fixed order, so the same input gives the same bytes.
-    threads = o3d.utility.get_max_threads()
-    o3d.utility.set_max_threads(1)
-    try:
-        hyps = run(local, models, p, stats)
-    finally:
-        o3d.utility.set_max_threads(threads)
-    dets = []
-    for h in hyps:
-        if not (np.all(np.isfinite(h.box)) and np.all(np.isfinite(h.t)) and np.isfinite(h.score)):
-            continue
-        box = np.asarray(h.box, dtype=np.float64).copy()
-        box[:3] += origin
-        dets.append({
-            "cls": h.cls,
-            "box": [float(v) for v in box],
-            "pose": {"t": [float(v) for v in h.t + origin], "q": [float(v) for v in h.q]},
-            "score": float(h.score),
-            "extras": {"rmse_m": float(h.rmse_m), "fitness": float(h.fitness), "f_t": float(h.f_t),
-                       "f_s": float(h.f_s), "accepted": bool(getattr(h, "accepted", True)),
-                       "round": int(h.round), "upright": bool(h.upright), "variant": variant},
-        })
-    dets.sort(key=lambda d: -d["score"])
-    stats["origin"] = [float(v) for v in origin]
-    stats["n_detections"] = len(dets)
-    stats["seconds"]["total"] = time.perf_counter() - t_all
+    detector = ModelBasedDetector(templates, objects, params, variant)
+    dets, stats = detector(xyz)
+    stats["seconds"]["models"] += detector.build_seconds
+    stats["seconds"]["total"] += detector.build_seconds
     return dets, stats

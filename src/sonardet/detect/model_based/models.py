@@ -1,11 +1,10 @@
 """Per-class models the detector matches against: template scans, mesh surface samples, BEV kernels.
 
 Everything here is in the object's canonical frame (base centre at the origin, z up, metres) and is
-built once per class per `detect` call (cheap: tens of milliseconds per class).
+built once per class per detector (`detector.ModelBasedDetector`; cheap: tens of milliseconds per class).
 
 * `views`: the template scans (the sensor's real sampling and occlusion pattern), one array per view;
-* `view_union`: all views merged and voxel-thinned; the paper variant's ICP source and the
-  template side of the two-way scores;
+  the paper variant registers one of them, `ours` scores upright poses against them;
 * `surface` / `surface_normals` (and a 2x coarser `coarse_surface` for the coarse ICP stage): the mesh
   surface sampled evenly (every face, inner walls too), the ICP
   target of the `ours` variant: a scene point anywhere on the object has a close model point whatever
@@ -34,7 +33,6 @@ class ClassModel:
     vertices: np.ndarray
     faces: np.ndarray
     views: list
-    view_union: np.ndarray
     surface: np.ndarray
     surface_normals: np.ndarray
     radius_m: float
@@ -46,6 +44,10 @@ class ClassModel:
     coarse_normals: np.ndarray = field(default=None, repr=False)
     surface_spacing_m: float = 0.06
     view_meta: dict = field(default_factory=dict)
+    #: Canonical unit axes (K,3); the object rests upright when one points up (its class spec's).
+    up_axes: np.ndarray = field(default_factory=lambda: np.array([[0.0, 0.0, 1.0]]))
+    #: Tumbled poses to try on leftovers (its class spec's `tumble`).
+    tumble: dict = field(default_factory=lambda: {"mode": "stable_poses"})
 
     @property
     def median_view_n(self) -> float:
@@ -79,13 +81,6 @@ class ClassModel:
         dp = np.abs(np.einsum("ij,ij->i", p - self.surface[i], self.surface_normals[i]))
         return np.where(dn < 1.5 * self.surface_spacing_m, dp, dn)
 
-    def exact_distance(self, pts_canonical: np.ndarray) -> np.ndarray:
-        """Exact unsigned point-to-mesh distance (m) of canonical-frame points (K,3) (Open3D ray casting)."""
-        if len(pts_canonical) == 0:
-            return np.zeros(0)
-        t = o3d.core.Tensor(np.ascontiguousarray(pts_canonical, dtype=np.float32))
-        return self.raycaster.compute_distance(t).numpy().astype(np.float64)
-
     def inside(self, pts_canonical: np.ndarray) -> np.ndarray:
         """Boolean (K,) of canonical-frame points inside the (watertight) mesh."""
         if len(pts_canonical) == 0:
@@ -100,15 +95,13 @@ class ClassModel:
         rays[:, 3:] = direction
         return self.raycaster.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
 
-    def top_height_map(self, cell_m: float, yaw_rad: float = 0.0, half_size_m: float | None = None,
-                       rotation: np.ndarray | None = None):
+    def top_height_map(self, cell_m: float, yaw_rad: float = 0.0, half_size_m: float | None = None):
         """Top-surface height (m above the base) of the mesh seen from above, on a square grid.
 
-        The object is turned by `rotation` (3x3, default a yaw of `yaw_rad` about z) and re-based so its
-        lowest vertex is at z = 0. Returns (heights (n,n) with NaN where no surface, cell centres (n,)
+        The object is turned by `yaw_rad` about z and re-based so its lowest vertex is at z = 0. Returns (heights (n,n) with NaN where no surface, cell centres (n,)
         in metres relative to the rotated base centre).
         """
-        r = rotation if rotation is not None else _rot_z(yaw_rad)
+        r = rot_z(yaw_rad)
         v = self.vertices @ r.T
         zmin = v[:, 2].min()
         half = half_size_m if half_size_m is not None else self.radius_m + cell_m
@@ -124,17 +117,23 @@ class ClassModel:
         return h.reshape(n, n), c
 
 
-def _rot_z(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
+def rot_z(a: float) -> np.ndarray:
+    """Rotation (3,3) by `a` rad about +z."""
+    c, s = np.cos(a), np.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def build_class_model(templates, obj, surface_spacing_m: float, union_voxel_m: float) -> ClassModel:
+def rot_x(a: float) -> np.ndarray:
+    """Rotation (3,3) by `a` rad about +x."""
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def build_class_model(templates, obj, surface_spacing_m: float) -> ClassModel:
     """Prepare one class from its template scans (`TemplateViews`) and object info (`ObjectInfo`).
 
     surface_spacing_m: mean spacing (m) of the evenly sampled mesh surface points (deterministic
-    sampling: Open3D Poisson-disk sampling seeded through `o3d.utility.random.seed` by the caller);
-    union_voxel_m: voxel (m) that thins the union of the template views.
+    sampling: Open3D Poisson-disk sampling seeded through `o3d.utility.random.seed` by the caller).
     """
     v = np.asarray(obj.mesh.vertices, dtype=np.float64)
     f = np.asarray(obj.mesh.faces, dtype=np.int64)
@@ -147,15 +146,13 @@ def build_class_model(templates, obj, surface_spacing_m: float, union_voxel_m: f
     normals = np.asarray(pcd.normals, dtype=np.float64)
     coarse = mesh.sample_points_poisson_disk(max(100, n // 4), init_factor=3, use_triangle_normal=True)
     views = [np.asarray(templates.points(k), dtype=np.float64) for k in range(templates.n_views)]
-    union = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(views)))
-    union = np.asarray(union.voxel_down_sample(union_voxel_m).points, dtype=np.float64)
     rc = o3d.t.geometry.RaycastingScene()
     rc.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(f.astype(np.uint32)))
     radius = float(np.max(np.hypot(v[:, 0], v[:, 1])))
     height = float(v[:, 2].max() - v[:, 2].min())
     ext = v.max(0) - v.min(0)
     return ClassModel(
-        cls=obj.cls, symmetry_order=int(obj.symmetry_order), vertices=v, faces=f, views=views, view_union=union,
+        cls=obj.cls, symmetry_order=int(obj.symmetry_order), vertices=v, faces=f, views=views,
         surface=surface, surface_normals=normals, radius_m=radius, height_m=height,
         footprint_m=float(max(ext[0], ext[1])), raycaster=rc, surface_tree=cKDTree(surface),
         surface_spacing_m=float(surface_spacing_m),
@@ -164,4 +161,5 @@ def build_class_model(templates, obj, surface_spacing_m: float, union_voxel_m: f
         view_meta={"offset_m": np.asarray(templates.offset_m, dtype=np.float64),
                    "yaw_rad": np.asarray(templates.yaw_rad, dtype=np.float64),
                    "direction": np.asarray(templates.direction)},
+        up_axes=np.asarray(obj.up_axes, dtype=np.float64).reshape(-1, 3), tumble=dict(obj.tumble),
     )

@@ -26,8 +26,8 @@ Steps (local scene frame, metres):
 
 from __future__ import annotations
 
-import hashlib
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import trimesh
@@ -36,65 +36,92 @@ from scipy.spatial import cKDTree
 
 from ...geometry import points_in_box
 from .ground import seabed
+from .models import ClassModel, rot_x, rot_z
 from .params import per_class
 from .proposals import class_kernels, clusters, height_raster, ncc_maps, ncc_peaks, vote_map
 from .registration import SceneSource, SurfaceTarget, icp_scene_to_model
-from .scoring import Hypothesis, new_fraction, rescore, score_hypothesis
+from .scoring import Hypothesis, SceneIndex, new_fraction, rescore, score_hypothesis, view_points
 
 
-def rot_z(a: float) -> np.ndarray:
-    """Rotation (3,3) by `a` rad about +z."""
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+def _given_tilts(tumble: dict) -> list:
+    """Tumbled starts of a class whose stable poses are all upright (e.g. a tetrapod, which rests on
+    three legs whatever the pose): its upright yaws (resting on others it may still be nearly
+    upright), then each of its tilts at each azimuth and yaw (the class spec's `tumble`)."""
+    yaws = np.deg2rad(tumble["yaws_deg"])
+    n_az = int(tumble["azimuths_n"])
+    out = [rot_z(yaw) for yaw in np.deg2rad(tumble["upright_yaws_deg"])]
+    for tilt in np.deg2rad(tumble["tilts_deg"]):
+        for az in np.arange(n_az) * 2 * np.pi / n_az:
+            for yaw in yaws:
+                out.append(rot_z(az) @ rot_x(tilt) @ rot_z(yaw))
+    return out
 
 
-def rot_x(a: float) -> np.ndarray:
-    """Rotation (3,3) by `a` rad about +x."""
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+def _stable_tilts_deg(model: ClassModel, p: dict) -> list[float]:
+    """Distinct tilts (deg, rounded to `tumbled_tilt_round_deg`) of the mesh's stable resting poses
+    (trimesh `compute_stable_poses`) within `tumbled_stable_tilt_range_deg` and at least
+    `tumbled_stable_prob_min` probable, ascending."""
+    mesh = trimesh.Trimesh(model.vertices, model.faces, process=False)
+    with np.errstate(all="ignore"):
+        transforms, probs = trimesh.poses.compute_stable_poses(mesh, n_samples=1, threshold=0.0)
+    lo, hi = p["tumbled_stable_tilt_range_deg"]
+    step = p["tumbled_tilt_round_deg"]
+    tilts = set()
+    for T, prob in zip(transforms, probs):
+        tilt = float(np.degrees(np.arccos(np.clip(T[2, 2], -1, 1))))
+        if not lo <= tilt <= hi or prob < p["tumbled_stable_prob_min"]:
+            continue
+        tilts.add(step * round(tilt / step))
+    return sorted(tilts)
 
 
-_TUMBLE_CACHE: dict = {}
+def tumbled_rotations(model: ClassModel, p: dict) -> list:
+    """Rotations (3,3, canonical -> scene) of tumbled resting poses to try on unexplained clusters.
 
-#: Set to a list to record (event, round, details) tuples while debugging; None in normal use.
-TRACE = None
-
-
-def tumbled_rotations(model, n_azimuth: int = 8) -> list:
-    """Rotations (3,3) of tumbled resting poses to try on unexplained clusters.
-
-    Rings and cones: the mesh's distinct stable resting tilts other than upright (trimesh
-    `compute_stable_poses`, tilts rounded to 5 deg; e.g. a cone on its side, a ring on edge or upside
-    down), each at `n_azimuth` azimuths. Tetrapods rest on three legs in every stable pose (tetrahedral
-    symmetry), so they get tilts of 30 and 55 deg (seen in piles) at 6 azimuths x 2 yaws, plus two
-    upright yaws (a tetrapod resting on others may still be nearly upright). Upside-down
-    poses (tilt > 150 deg) are left out: rings and cones fit them from the upright start (a ring is
-    nearly mirror-symmetric; an upside-down cone is rare).
+    What the class spec's `tumble` (model.tumble) says: mode 'stable_poses' (rings, cones): the mesh's
+    distinct stable resting tilts other than upright (`_stable_tilts_deg`; e.g. a cone on its side, a
+    ring on edge), each at `tumbled_azimuths_n` azimuths; upside-down poses are left out by the
+    default tilt range (rings and cones fit them from the upright start: a ring is nearly
+    mirror-symmetric, an upside-down cone is rare). Mode 'tilts' (tetrapods: every stable pose rests
+    on three legs): the spec's tilts (seen in piles) at its azimuths and yaws, plus its upright yaws.
     """
-    key = (model.cls, hashlib.sha1(np.ascontiguousarray(model.vertices).tobytes()).hexdigest(), n_azimuth)
-    if key in _TUMBLE_CACHE:
-        return _TUMBLE_CACHE[key]
+    if model.tumble.get("mode") == "tilts":
+        return _given_tilts(model.tumble)
+    n_az = int(p["tumbled_azimuths_n"])
     out = []
-    if model.cls.startswith("tetrapod"):
-        out += [rot_z(0.0), rot_z(np.pi / 3)]  # upright, as a start among the tilted ones
-        for tilt in np.deg2rad([30.0, 55.0]):
-            for az in np.arange(6) * np.pi / 3:
-                for yaw in (0.0, np.pi / 3):
-                    out.append(rot_z(az) @ rot_x(tilt) @ rot_z(yaw))
-    else:
-        mesh = trimesh.Trimesh(model.vertices, model.faces, process=False)
-        with np.errstate(all="ignore"):
-            transforms, probs = trimesh.poses.compute_stable_poses(mesh, n_samples=1, threshold=0.0)
-        tilts = set()
-        for T, p in zip(transforms, probs):
-            tilt = float(np.degrees(np.arccos(np.clip(T[2, 2], -1, 1))))
-            if not 60.0 <= tilt <= 150.0 or p < 1e-3:
-                continue
-            tilts.add(5.0 * round(tilt / 5.0))
-        for tilt in sorted(tilts):
-            for az in np.arange(n_azimuth) * 2 * np.pi / n_azimuth:
-                out.append(rot_z(az) @ rot_x(np.deg2rad(tilt)))
-    _TUMBLE_CACHE[key] = out
+    for tilt in _stable_tilts_deg(model, p):
+        for az in np.arange(n_az) * 2 * np.pi / n_az:
+            out.append(rot_z(az) @ rot_x(np.deg2rad(tilt)))
+    return out
+
+
+@dataclass
+class OursClass:
+    """What variant `ours` derives once from one class model and its parameters (canonical frame, m).
+
+    model: the ClassModel; targets: (coarse, fine) ICP targets (the mesh surface sampled at two
+    spacings); kernels: BEV kernels of the proposals (`proposals.class_kernels`); tumbled: rotations
+    of the tumbled starts (`tumbled_rotations`; empty when `tumbled_inits` is off); views: the
+    template views thinned to `coverage_voxel_m` (the template->scene fraction of upright poses).
+    """
+
+    model: ClassModel
+    targets: tuple[SurfaceTarget, SurfaceTarget]
+    kernels: list
+    tumbled: list
+    views: list
+
+
+def prepare_classes(models: dict[str, ClassModel], p: dict) -> dict[str, OursClass]:
+    """The per-class data of variant `ours` (class -> OursClass), built once per detector."""
+    out = {}
+    for cls, m in models.items():
+        out[cls] = OursClass(
+            model=m,
+            targets=(SurfaceTarget(m.coarse_surface, m.coarse_normals), SurfaceTarget(m.surface, m.surface_normals)),
+            kernels=class_kernels(m, p["bev_cell_m"], p["bev_yaw_step_deg"]),
+            tumbled=tumbled_rotations(m, p) if p["tumbled_inits"] else [],
+            views=view_points(m.views, p["coverage_voxel_m"]))
     return out
 
 
@@ -110,7 +137,7 @@ class _State:
         self.seabed_xy = xyz[~mask, :2]
         self.active = np.ones(len(self.pts), dtype=bool)
         self.tree_xy = cKDTree(self.pts[:, :2]) if len(self.pts) else None
-        self.all_tree_xy = cKDTree(xyz[:, :2])
+        self.scene = SceneIndex(self.pts, self.active, self.tree_xy, xyz, cKDTree(xyz[:, :2]))
         c = p["bev_cell_m"]
         # Cell-aligned raster origin: a crop of the survey (a tile) sees the same cells as the whole.
         self.x0, self.y0 = (float(np.floor(xyz[:, k].min() / c) * c) for k in (0, 1))
@@ -130,17 +157,21 @@ def _crop(st: _State, xy, radius: float, only_active: bool = True) -> np.ndarray
     return idx
 
 
+def _count(stats: dict, kind: str) -> None:
+    stats["icp_runs"] += 1
+    stats["icp_runs_by_kind"][kind] = stats["icp_runs_by_kind"].get(kind, 0) + 1
+
+
 class _Job:
     """The fitting state of one proposal: crop, ICP source, starts tried and the best coarse result."""
 
-    def __init__(self, st, model, target, crop_idx, p, kind, occluders=(), xy=None):
-        self.model, self.target, self.crop, self.kind = model, target, crop_idx, kind
+    def __init__(self, st, k: OursClass, crop_idx, p, kind, occluders=(), xy=None):
+        self.k, self.model, self.target, self.crop, self.kind = k, k.model, k.targets, crop_idx, kind
         self.occluders, self.xy = occluders, xy
         P = st.pts[crop_idx]
         self.src = SceneSource(P, p["icp_min_points_n"])
-        self.probe = P[:: max(1, len(P) // 150)]
+        self.probe = P[:: max(1, len(P) // int(p["coarse_probe_points_n"]))]
         self.best, self.best_q = None, -1.0
-        self.scale = len(P) / max(len(self.probe), 1)
 
     @property
     def best_n(self) -> float:
@@ -154,6 +185,26 @@ class _Job:
             return False
         return self.best_q >= p["coarse_q_min"] or self.best_n >= p["coarse_n_min_frac"] * self.model.median_view_n
 
+    def quality(self, res, p) -> float:
+        """Coarse quality of an ICP result: share of the probe points within coarse_q_dist_m of the posed surface."""
+        return float((self.model.distance((self.probe - res.t) @ res.R) < p["coarse_q_dist_m"]).mean())
+
+    def screen(self, starts, p, stats, keep: int) -> list:
+        """The `keep` best starts (R0, t0) after the cheap `icp_screen_stage` (moved to its result)."""
+        t = time.perf_counter()
+        scr = [tuple(p["icp_screen_stage"])]
+        ranked = []
+        for k, (R0, t0) in enumerate(starts):
+            _count(stats, "screen")
+            res = icp_scene_to_model(self.src, self.target[0], R0, t0, scr, p["icp_tukey_k_frac"],
+                                     p["icp_min_points_n"])
+            if res is None:
+                continue
+            ranked.append((-self.quality(res, p), k, (res.R, res.t)))
+        ranked.sort(key=lambda r: (r[0], r[1]))
+        stats["seconds"]["registration"] += time.perf_counter() - t
+        return [r[2] for r in ranked[:keep]]
+
     def coarse(self, starts, p, stats, screen_keep: int = 0):
         """Coarse ICP stage from each start (R0, t0); keeps the best by the probe quality q (share of
         thinned crop points within coarse_q_dist_m of the posed surface). With screen_keep > 0 the
@@ -162,34 +213,17 @@ class _Job:
         if self.src.reason is not None:
             return
         if screen_keep > 0 and len(starts) > screen_keep:
-            t = time.perf_counter()
-            scr = [tuple(p["icp_screen_stage"])]
-            ranked = []
-            for k, (R0, t0) in enumerate(starts):
-                stats["icp_runs"] += 1
-                stats["icp_runs_by_kind"]["screen"] = stats["icp_runs_by_kind"].get("screen", 0) + 1
-                res = icp_scene_to_model(self.src, self.target[0], R0, t0, scr, p["icp_tukey_k_frac"],
-                                         p["icp_min_points_n"])
-                if res is None:
-                    continue
-                q = float((self.model.distance((self.probe - res.t) @ res.R) < p["coarse_q_dist_m"]).mean())
-                ranked.append((-q, k, (res.R, res.t)))
-            ranked.sort(key=lambda r: (r[0], r[1]))
-            starts = [r[2] for r in ranked[:screen_keep]]
-            stats["seconds"]["registration"] += time.perf_counter() - t
+            starts = self.screen(starts, p, stats, screen_keep)
         t = time.perf_counter()
         stage = [tuple(p["icp_stages"][0])]
         for R0, t0 in starts:
-            stats["icp_runs"] += 1
-            stats["icp_runs_by_kind"][self.kind] = stats["icp_runs_by_kind"].get(self.kind, 0) + 1
+            _count(stats, self.kind)
             res = icp_scene_to_model(self.src, self.target[0], R0, t0, stage, p["icp_tukey_k_frac"],
                                      p["icp_min_points_n"])
             if res is None:
                 stats["icp_declined"] += 1
                 continue
-            q = float((self.model.distance((self.probe - res.t) @ res.R) < p["coarse_q_dist_m"]).mean())
-            if TRACE is not None:
-                TRACE.append(("q", self.kind, self.model.cls, tuple(np.asarray(t0)[:2]), q, tuple(res.t)))
+            q = self.quality(res, p)
             if q > self.best_q:
                 self.best, self.best_q = res, q
         stats["seconds"]["registration"] += time.perf_counter() - t
@@ -219,16 +253,16 @@ class _Job:
         stats["seconds"]["registration"] += time.perf_counter() - t
         if res is None:
             return None
-        return _score(st, self.model, res, p, stats, self.occluders)
+        return _score(st, self.k, res, p, stats, self.occluders)
 
 
-def _score(st, model, res, p, stats, occluders):
+def _score(st, k: OursClass, res, p, stats, occluders):
     t = time.perf_counter()
-    h = score_hypothesis(model, res.R, res.t, model.cls, st.pts, st.active, st.tree_xy, st.xyz,
-                         st.all_tree_xy, p, per_class(p["rmse_max_m"], model.cls), occluders)
+    model = k.model
+    h = score_hypothesis(model, k.views, res.R, res.t, st.scene, p, per_class(p["rmse_max_m"], model.cls), occluders)
     h.fitness = res.fitness
     # Plausibility: the object cannot be sunk into the seabed.
-    v = model.vertices[::7] @ res.R.T + res.t
+    v = model.vertices[::int(p["sink_vertex_stride_n"])] @ res.R.T + res.t
     low = v[np.argmin(v[:, 2])]
     if low[2] < float(st.ground.z_at(low[0], low[1])) - p["sink_max_m"]:
         h.score = 0.0
@@ -237,66 +271,77 @@ def _score(st, model, res, p, stats, occluders):
     return h
 
 
-def _fit(st, model, target, R0, t0, crop_idx, p, stats, occluders=(), kind="refit"):
+def _fit(st, k: OursClass, R0, t0, crop_idx, p, stats, occluders=(), kind="refit"):
     """ICP of the crop onto the model from (R0, t0) (all stages, one start), then scoring; None if ICP declines."""
-    job = _Job(st, model, target, crop_idx, p, kind, occluders)
+    job = _Job(st, k, crop_idx, p, kind, occluders)
     job.coarse([(R0, t0)], p, stats)
     return job.finish(st, p, stats)
 
 
-def _z_inits(st, model, xy, crop_idx):
+def _z_inits(st, model, xy, crop_idx, p):
+    """Start heights (m) of an upright proposal: on the seabed and, when the crop is taller than the class
+    by more than `top_start_min_lift_m`, with the object's top at the crop's top."""
     zg = float(st.ground.z_at(xy[0], xy[1]))
     out = [zg]
     if len(crop_idx):
         ztop = float(st.pts[crop_idx, 2].max()) - model.height_m
-        if ztop > zg + 0.25:
+        if ztop > zg + p["top_start_min_lift_m"]:
             out.append(ztop)
     return out
 
 
-def _propose_upright(st, models, kernels, p, rnd, accepted, stats):
-    """Round proposals: NCC peaks per class on the map of unexplained points (explained cells unknown)."""
-    t = time.perf_counter()
+def _proposal_raster(st, p):
+    """Height-above-seabed raster of the unexplained points; cells only explained objects occupy are
+    unknown (NaN: an accepted object may hide what is below it)."""
     act = st.active
     xy = np.concatenate([st.seabed_xy, st.pts[act, :2]])
     hv = np.concatenate([np.zeros(len(st.seabed_xy)), st.hab[act]])
     r = height_raster(xy, hv, p["bev_cell_m"], st.x0, st.y0, st.shape)
     if (~act).any():
-        # Cells only explained objects occupy: unknown (an accepted object may hide what is below it).
         ex = height_raster(st.pts[~act, :2], st.hab[~act], p["bev_cell_m"], st.x0, st.y0, st.shape)
         hidden = np.isfinite(ex.h) & ~(r.h > p["ground_min_height_m"])
         r.h[hidden] = np.nan
+    return r
+
+
+def _propose_upright(st, classes, p, rnd, accepted, stats):
+    """Round proposals: NCC peaks per class on the map of unexplained points (explained cells unknown)."""
+    t = time.perf_counter()
+    r = _proposal_raster(st, p)
     out = []
-    for cls, m in models.items():
-        best, arg, occ = ncc_maps(r, kernels[cls], p["ground_min_height_m"])
-        if TRACE is not None:
-            TRACE.append(("raster", rnd, cls, (np.inf, np.inf), r.h.copy(), best, occ))
+    for cls, k in classes.items():
+        m, kernels = k.model, k.kernels
+        best, arg, occ = ncc_maps(r, kernels, p["ground_min_height_m"], p["proposal_data_min_frac"])
         rad = int(round(p["proposal_nms_radius_frac"] * m.radius_m / p["bev_cell_m"]))
         ii, jj = ncc_peaks(best, occ, p["proposal_ncc_min"], p["proposal_occupancy_min_frac"], rad)
-        yaw_of = [kernels[cls][arg[i, j]].yaw_rad for i, j in zip(ii, jj)]
+        yaw_of = [kernels[arg[i, j]].yaw_rad for i, j in zip(ii, jj)]
         if rnd > 0:
             # Partly hidden objects: plain occupancy votes of the unexplained points.
-            vb, va = vote_map(r, kernels[cls], p["ground_min_height_m"])
+            vb, va = vote_map(r, kernels, p["ground_min_height_m"])
             vi, vj = ncc_peaks(vb, np.ones_like(vb), p["proposal_vote_min_frac"], 0.0, rad)
             ii, jj = np.r_[ii, vi], np.r_[jj, vj]
-            yaw_of += [kernels[cls][va[i, j]].yaw_rad for i, j in zip(vi, vj)]
+            yaw_of += [kernels[va[i, j]].yaw_rad for i, j in zip(vi, vj)]
         centres = r.centre(ii, jj)
         kept = []
+        near_accepted = p["proposal_accepted_radius_frac"] * m.radius_m
         for (x, y), i, j, yaw in zip(centres, ii, jj, yaw_of):
             if any(np.hypot(x - kx, y - ky) < p["proposal_merge_m"] for kx, ky in kept):
                 continue
-            if any(a.cls == cls and np.hypot(*(a.t[:2] - [x, y])) < 0.5 * m.radius_m for a in accepted):
+            if any(a.cls == cls and np.hypot(*(a.t[:2] - [x, y])) < near_accepted for a in accepted):
                 continue
             kept.append((x, y))
             out.append((cls, np.array([x, y]), yaw, float(best[i, j])))
-            if TRACE is not None:
-                TRACE.append(("proposal", rnd, cls, (x, y), float(best[i, j])))
     stats["seconds"]["proposals"] += time.perf_counter() - t
     return out
 
 
 def _near_boxes(accepted, xy, radius):
     return [a.box for a in accepted if np.hypot(*(a.box[:2] - xy)) < radius + 0.5 * np.hypot(a.box[3], a.box[4])]
+
+
+def _occluders(accepted, model, xy, p):
+    """Boxes of the accepted objects that may hide parts of an object of `model`'s class at `xy`."""
+    return _near_boxes(accepted, xy, model.radius_m + p["occluder_margin_m"])
 
 
 def _screened_crop(st, cls, m, xy, p, stats, tried: list):
@@ -316,27 +361,28 @@ def _screened_crop(st, cls, m, xy, p, stats, tried: list):
     return crop
 
 
-def _hypotheses_upright(st, models, targets, proposals, p, rnd, accepted, stats):
+def _hypotheses_upright(st, classes, proposals, p, rnd, accepted, stats):
     """Upright hypotheses: coarse ICP of every proposal from its starts (seabed/top-aligned heights x
     yaws), class competition among nearby proposals on the coarse quality, shifted restarts and fine
     ICP + scoring for the survivors."""
     jobs = []
     for cls, xy, yaw, _ in proposals:
-        m = models[cls]
+        k = classes[cls]
+        m = k.model
         crop = _screened_crop(st, cls, m, xy, p, stats, st.tried)
         if crop is None:
             continue
         n_yaw = 1 if m.symmetric else max(1, int(p["n_yaw_init"]))
-        yaws = [yaw + k * m.yaw_period_rad / n_yaw for k in range(n_yaw)]
-        job = _Job(st, m, targets[cls], crop, p, f"upright{rnd}", _near_boxes(accepted, xy, m.radius_m + 0.5), xy)
-        job.coarse([(rot_z(yw), np.r_[xy, z0]) for z0 in _z_inits(st, m, xy, crop) for yw in yaws], p, stats)
+        yaws = [yaw + i * m.yaw_period_rad / n_yaw for i in range(n_yaw)]
+        job = _Job(st, k, crop, p, f"upright{rnd}", _occluders(accepted, m, xy, p), xy)
+        job.coarse([(rot_z(yw), np.r_[xy, z0]) for z0 in _z_inits(st, m, xy, crop, p) for yw in yaws], p, stats)
         if job.best is not None:
             jobs.append(job)
     # Class competition: near one another, proposals far below the best coarse quality are dropped.
     qs = np.array([j.best_q for j in jobs])
     xys = np.array([j.xy for j in jobs]).reshape(-1, 2)
     hyps = []
-    for k, job in enumerate(jobs):
+    for job in jobs:
         near = np.hypot(*(xys - job.xy).T) < p["class_competition_m"]
         if not job.passes(p) or job.best_q < qs[near].max() - p["class_q_margin"]:
             stats["proposals_outcompeted"] += 1
@@ -353,73 +399,89 @@ def _residual_seeds(st, g_idx, p) -> list:
     """Seed positions (x, y) in one cluster of unexplained points: the peaks of the smoothed point
     density (Gaussian `residual_seed_sigma_m`, peaks at least `residual_seed_sep_m` apart), which sit
     near the middle of each object's visible part even when objects touch or pile up; plus the
-    cluster's centroid unless a peak is that close."""
-    cell = 0.1
+    cluster's centroid unless a peak is `residual_centroid_sep_m` close."""
+    cell = p["residual_seed_cell_m"]
+    pad = p["residual_seed_pad_m"]
     xy = st.pts[g_idx, :2]
-    lo = np.floor((xy.min(0) - 1.0) / cell) * cell  # cell-aligned: a crop sees the same cells
-    shape = tuple((np.ceil((xy.max(0) + 1.0 - lo) / cell)).astype(int)[::-1])
+    lo = np.floor((xy.min(0) - pad) / cell) * cell  # cell-aligned: a crop sees the same cells
+    shape = tuple((np.ceil((xy.max(0) + pad - lo) / cell)).astype(int)[::-1])
     j = ((xy[:, 0] - lo[0]) / cell).astype(int)
     i = ((xy[:, 1] - lo[1]) / cell).astype(int)
     dens = np.zeros(shape)
     np.add.at(dens, (i, j), 1.0)
     dens = ndi.gaussian_filter(dens, p["residual_seed_sigma_m"] / cell, mode="constant")
     size = 2 * int(round(p["residual_seed_sep_m"] / cell)) + 1
-    peak = (dens >= ndi.maximum_filter(dens, size=size, mode="constant")) & (dens >= 0.25 * dens.max())
+    peak = (dens >= ndi.maximum_filter(dens, size=size, mode="constant")) & \
+        (dens >= p["residual_seed_min_density_frac"] * dens.max())
     pi, pj = np.nonzero(peak)
     order = np.argsort(-dens[pi, pj], kind="stable")[: int(p["residual_max_seeds_n"])]
     seeds = [np.array([lo[0] + (pj[k] + 0.5) * cell, lo[1] + (pi[k] + 0.5) * cell]) for k in order]
     c = xy.mean(0)
-    if all(np.hypot(*(c - q)) > 0.3 for q in seeds):
+    if all(np.hypot(*(c - q)) > p["residual_centroid_sep_m"] for q in seeds):
         seeds.append(c)
     return seeds
 
 
-def _hypotheses_tumbled(st, models, targets, p, rnd, accepted, stats):
-    """Tumbled-orientation hypotheses on clusters of unexplained points (seeds: `_residual_seeds`)."""
-    # Leftovers of accepted objects (points just beyond claim_m of their mesh: feet, edges, noise) are
-    # not new objects: points within 2 x claim_m of an accepted mesh do not seed.
+def _seeding_points(st, classes, accepted, p) -> np.ndarray:
+    """Indices of the unexplained candidate points that may seed tumbled hypotheses. Leftovers of
+    accepted objects (points just beyond claim_m of their mesh: feet, edges, noise) are not new
+    objects: points within leftover_claim_factor x claim_m of an accepted mesh do not seed."""
     free = st.active.copy()
+    margin = p["leftover_margin_m"]
     for a in accepted:
-        m = models[a.cls]
-        idx = _crop(st, a.t[:2], m.radius_m + 0.3)
+        m = classes[a.cls].model
+        idx = _crop(st, a.t[:2], m.radius_m + margin)
         if len(idx):
-            idx = idx[points_in_box(st.pts[idx], a.box, 0.3)]
-            free[idx[m.distance((st.pts[idx] - a.t) @ a.R) < 2 * p["claim_m"]]] = False
-    idx_act = np.flatnonzero(free)
+            idx = idx[points_in_box(st.pts[idx], a.box, margin)]
+            free[idx[m.distance((st.pts[idx] - a.t) @ a.R) < p["leftover_claim_factor"] * p["claim_m"]]] = False
+    return np.flatnonzero(free)
+
+
+def _tumbled_starts(st, m, rots, xy, crop, p) -> list:
+    """Starts (R0, t0) of the tumbled poses `rots` at seed `xy`: each pose resting on the seabed, centred
+    on the seed, and lifted to the crop's top when the crop is taller than the pose by more than
+    `top_start_min_lift_m` (it may rest on others). Poses taller than the crop allows are left out."""
+    zg = float(st.ground.z_at(xy[0], xy[1]))
+    ztop = float(st.pts[crop, 2].max())
+    crop_h = float(st.hab[crop].max())
+    stride = int(p["tumbled_vertex_stride_n"])
+    starts = []
+    for R0 in rots:
+        v = m.vertices[::stride] @ R0.T
+        if crop_h < p["proposal_min_height_frac"] * (v[:, 2].max() - v[:, 2].min()):
+            continue  # the crop is too low for the object in this pose
+        c = 0.5 * (v.min(0) + v.max(0))
+        base = np.array([xy[0] - c[0], xy[1] - c[1], zg - v[:, 2].min()])
+        starts.append((R0, base))
+        lift = ztop - v[:, 2].max() - base[2]
+        if lift > p["top_start_min_lift_m"]:
+            starts.append((R0, base + [0.0, 0.0, lift]))
+    return starts
+
+
+def _hypotheses_tumbled(st, classes, p, rnd, accepted, stats):
+    """Tumbled-orientation hypotheses on clusters of unexplained points (seeds: `_residual_seeds`)."""
+    idx_act = _seeding_points(st, classes, accepted, p)
     if len(idx_act) == 0:
         return []
     hyps = []
-    for grp in clusters(st.pts[idx_act, :2], 0.2, p["residual_min_points_n"]):
+    for grp in clusters(st.pts[idx_act, :2], p["residual_cluster_cell_m"], p["residual_min_points_n"]):
         g = idx_act[grp]
-        top = float(st.hab[g].max())
-        if top < p["residual_min_height_m"]:
+        if float(st.hab[g].max()) < p["residual_min_height_m"]:
             continue
         for xy in _residual_seeds(st, g, p):
-            for cls, m in models.items():
-                rots = tumbled_rotations(m)
-                if not rots:
+            for cls, k in classes.items():
+                m = k.model
+                if not k.tumbled:
                     continue
                 crop = _screened_crop(st, cls, m, xy, p, stats, st.tried_tumbled)
                 if crop is None:
                     continue
-                zg = float(st.ground.z_at(xy[0], xy[1]))
-                ztop = float(st.pts[crop, 2].max())
-                crop_h = float(st.hab[crop].max())
-                starts = []
-                for R0 in rots:
-                    v = m.vertices[::5] @ R0.T
-                    if crop_h < p["proposal_min_height_frac"] * (v[:, 2].max() - v[:, 2].min()):
-                        continue  # the crop is too low for the object in this pose
-                    c = 0.5 * (v.min(0) + v.max(0))
-                    base = np.array([xy[0] - c[0], xy[1] - c[1], zg - v[:, 2].min()])
-                    starts.append((R0, base))
-                    lift = ztop - v[:, 2].max() - base[2]
-                    if lift > 0.25:  # the crop is taller than this pose: maybe resting on others
-                        starts.append((R0, base + [0.0, 0.0, lift]))
+                starts = _tumbled_starts(st, m, k.tumbled, xy, crop, p)
                 if not starts:
                     stats["windows_skipped"] += 1
                     continue
-                job = _Job(st, m, targets[cls], crop, p, "tumbled", _near_boxes(accepted, xy, m.radius_m + 0.5), xy)
+                job = _Job(st, k, crop, p, "tumbled", _occluders(accepted, m, xy, p), xy)
                 job.coarse(starts, p, stats, screen_keep=int(p["tumbled_screen_keep_n"]))
                 if not job.passes(p):
                     continue
@@ -431,27 +493,28 @@ def _hypotheses_tumbled(st, models, targets, p, rnd, accepted, stats):
     return hyps
 
 
-def _penetration(h, a, models) -> float:
-    """Share of h's surface samples (every 3rd) inside accepted object a's mesh."""
-    if np.hypot(*(h.t[:2] - a.t[:2])) > models[h.cls].radius_m + models[a.cls].radius_m:
+def _penetration(h, a, classes, p) -> float:
+    """Share of h's surface samples (every penetration_surface_stride_n-th) inside accepted object a's mesh."""
+    mh, ma = classes[h.cls].model, classes[a.cls].model
+    if np.hypot(*(h.t[:2] - a.t[:2])) > mh.radius_m + ma.radius_m:
         return 0.0
-    s = models[h.cls].surface[::3] @ h.R.T + h.t
-    return float(models[a.cls].inside((s - a.t) @ a.R).mean())
+    s = mh.surface[::int(p["penetration_surface_stride_n"])] @ h.R.T + h.t
+    return float(ma.inside((s - a.t) @ a.R).mean())
 
 
-def _claim(st, h, models, p):
+def _claim(st, h, classes, p):
     """Indices of candidate points the accepted hypothesis explains (within claim_m of its mesh)."""
-    m = models[h.cls]
-    idx = _crop(st, h.t[:2], m.radius_m + 0.2, only_active=True)
+    m = classes[h.cls].model
+    idx = _crop(st, h.t[:2], m.radius_m + p["claim_crop_margin_m"], only_active=True)
     if len(idx) == 0:
         return idx
     d = m.distance((st.pts[idx] - h.t) @ h.R)
     return idx[d < p["claim_m"]]
 
 
-def _own(st, h, models, p):
+def _own(st, h, classes, p):
     """Mark the points an accepted hypothesis explains (inliers + claimed) as owned by it."""
-    claimed = _claim(st, h, models, p)
+    claimed = _claim(st, h, classes, p)
     idx = np.union1d(claimed, h.cand[h.inl][st.active[h.cand[h.inl]]])
     st.active[idx] = False
     st.owner[idx] = h.uid
@@ -466,48 +529,77 @@ def _disown(st, a):
 
 
 def _replaceable(st, h, accepted, p):
-    """Accepted objects h may replace: those owning at least 20 % of h's inliers, if h scores at least
-    `replace_factor` times each of them (a tumbled big tetrapod over a small one accepted first)."""
+    """Accepted objects h may replace: those owning at least `replace_owner_min_frac` of h's inliers, if h
+    scores at least `replace_factor` times each of them (a tumbled big tetrapod over a small one
+    accepted first)."""
     inl = h.cand[h.inl]
     if len(inl) == 0:
         return []
     owners = st.owner[inl]
     ids, counts = np.unique(owners[owners >= 0], return_counts=True)
-    conf = [a for a in accepted if a.uid in set(ids[counts >= 0.2 * len(inl)].tolist())]
+    conf = [a for a in accepted if a.uid in set(ids[counts >= p["replace_owner_min_frac"] * len(inl)].tolist())]
     if conf and all(h.score >= p["replace_factor"] * a.score for a in conf):
         return conf
     return []
 
 
-def _select(st, models, targets, pending, accepted, p, stats):
+def _acceptable(st, h, classes, accepted, p, rmse_max):
+    """Whether the best pending hypothesis h may be accepted, and the accepted objects it replaces.
+
+    Returns (ok, new_ok, replace): new_ok when enough of its inliers are unexplained; replace the
+    accepted objects it may replace otherwise (`_replaceable`); ok when it explains something new (or
+    replaces), its RMSE is within the class limit and it interpenetrates no other accepted object."""
+    replace = []
+    new_ok = new_fraction(h, st.active) >= p["new_min_frac"]
+    if not new_ok and p["replace_factor"] > 0:
+        replace = _replaceable(st, h, accepted, p)
+    others = [a for a in accepted if all(a is not r for r in replace)]
+    lim = p["penetration_max_frac"]
+    ok = ((new_ok or bool(replace)) and h.rmse_m <= rmse_max[h.cls]
+          and all(_penetration(h, a, classes, p) <= lim and _penetration(a, h, classes, p) <= lim for a in others))
+    return ok, new_ok, replace
+
+
+def _update_pending(st, classes, pending, accepted, gone, changed, p, stats, rmse_max):
+    """Pending hypotheses that shared points a newly accepted object explained (`changed`): refitted on
+    what is left when they lost more than `refit_lost_min_frac` of their candidates to it (`gone`; at
+    most `refits_max_n` times each), else re-scored."""
+    for j, o in enumerate(pending):
+        if len(o.cand) == 0:
+            continue
+        if not changed[o.cand].any():
+            continue
+        lost = gone[o.cand].mean()
+        if lost > p["refit_lost_min_frac"] and o.n_refits < p["refits_max_n"]:
+            k = classes[o.cls]
+            crop = _crop(st, o.t[:2], k.model.radius_m + p["crop_margin_m"])
+            ref = _fit(st, k, o.R, o.t, crop, p, stats, _occluders(accepted, k.model, o.t[:2], p), kind="refit") \
+                if len(crop) >= p["icp_min_points_n"] else None
+            if ref is not None:
+                ref.round, ref.seed_xy, ref.n_refits = o.round, o.seed_xy, o.n_refits + 1
+                pending[j] = ref
+                stats["refits"] += 1
+                continue
+        rescore(o, st.active, rmse_max[o.cls])
+
+
+def _select(st, classes, pending, accepted, p, stats):
     """Greedy explain-away over pending hypotheses; returns the newly accepted ones.
 
-    The best pending hypothesis is accepted when its score reaches `accept_min`, at least
-    `new_min_frac` of its inliers are still unexplained (else it may replace weaker accepted objects
-    owning them, see `_replaceable`), its RMSE is within the class limit and it does not interpenetrate
-    an accepted object. Its points are then explained; pending hypotheses that shared them are refitted
-    on the remaining points (up to twice) or re-scored.
+    The best pending hypothesis is accepted when its score reaches `accept_min` and `_acceptable`
+    allows it. Its points are then explained (the objects it replaces give theirs back); pending
+    hypotheses that shared them are refitted or re-scored (`_update_pending`).
     """
     t = time.perf_counter()
     new_acc = []
-    rmse_max = {c: per_class(p["rmse_max_m"], c) for c in models}
+    rmse_max = {c: per_class(p["rmse_max_m"], c) for c in classes}
     while pending:
-        k = int(np.argmax([h.score for h in pending]))
-        h = pending[k]
+        i = int(np.argmax([h.score for h in pending]))
+        h = pending[i]
         if h.score < p["accept_min"]:
             break
-        pending.pop(k)
-        replace = []
-        new_ok = new_fraction(h, st.active) >= p["new_min_frac"]
-        if not new_ok and p["replace_factor"] > 0:
-            replace = _replaceable(st, h, accepted, p)
-        others = [a for a in accepted if all(a is not r for r in replace)]
-        ok = ((new_ok or bool(replace)) and h.rmse_m <= rmse_max[h.cls]
-              and all(_penetration(h, a, models) <= p["penetration_max_frac"]
-                      and _penetration(a, h, models) <= p["penetration_max_frac"] for a in others))
-        if TRACE is not None:
-            TRACE.append(("decide", h.round, h.cls, tuple(h.box[:2]), h.score, ok, new_fraction(h, st.active),
-                          h.f_t, h.f_s, h.rmse_m, len(replace)))
+        pending.pop(i)
+        ok, new_ok, replace = _acceptable(st, h, classes, accepted, p, rmse_max)
         if not ok:
             h.score = 0.0 if not new_ok and not replace else h.score
             st.rejected.append(h)
@@ -525,62 +617,18 @@ def _select(st, models, targets, pending, accepted, p, stats):
         st.next_uid += 1
         accepted.append(h)
         new_acc.append(h)
-        idx = _own(st, h, models, p)
+        idx = _own(st, h, classes, p)
         gone[idx] = True
         changed[idx] = True
-        # Hypotheses that shared the explained points: refit on what is left, then re-score.
-        for j, o in enumerate(pending):
-            if len(o.cand) == 0:
-                continue
-            if not changed[o.cand].any():
-                continue
-            lost = gone[o.cand].mean()
-            if lost > 0.1 and o.n_refits < 2:
-                m = models[o.cls]
-                crop = _crop(st, o.t[:2], m.radius_m + p["crop_margin_m"])
-                ref = _fit(st, m, targets[o.cls], o.R, o.t, crop, p, stats,
-                           _near_boxes(accepted, o.t[:2], m.radius_m + 0.5), kind="refit") \
-                    if len(crop) >= p["icp_min_points_n"] else None
-                if ref is not None:
-                    ref.round, ref.seed_xy, ref.n_refits = o.round, o.seed_xy, o.n_refits + 1
-                    pending[j] = ref
-                    stats["refits"] += 1
-                    continue
-            rescore(o, st.active, rmse_max[o.cls])
+        _update_pending(st, classes, pending, accepted, gone, changed, p, stats, rmse_max)
     st.rejected.extend(pending)
     stats["seconds"]["selection"] += time.perf_counter() - t
     return new_acc
 
 
-def detect_ours(xyz: np.ndarray, models: dict, p: dict, stats: dict) -> list:
-    """Run the `ours` pipeline on local-frame points (N,3); returns scored Hypothesis objects
-    (accepted ones first, then down-weighted others) with `accepted` set on each."""
-    t = time.perf_counter()
-    ground = seabed(xyz, p)
-    st = _State(xyz, ground, p)
-    stats["replaced"] = 0
-    stats["proposals_repeated"] = 0
-    stats["proposals_outcompeted"] = 0
-    stats["n_candidate_points"] = int(len(st.pts))
-    stats["seconds"]["ground"] += time.perf_counter() - t
-    if len(st.pts) < p["icp_min_points_n"]:
-        return []
-    t = time.perf_counter()
-    targets = {c: (SurfaceTarget(m.coarse_surface, m.coarse_normals), SurfaceTarget(m.surface, m.surface_normals))
-               for c, m in models.items()}
-    kernels = {c: class_kernels(m, p["bev_cell_m"], p["bev_yaw_step_deg"]) for c, m in models.items()}
-    stats["seconds"]["models"] += time.perf_counter() - t
-    accepted: list[Hypothesis] = []
-    for rnd in range(int(p["proposal_max_rounds_n"])):
-        props = _propose_upright(st, models, kernels, p, rnd, accepted, stats)
-        pending = _hypotheses_upright(st, models, targets, props, p, rnd, accepted, stats)
-        if rnd > 0 and p["tumbled_inits"]:
-            pending += _hypotheses_tumbled(st, models, targets, p, rnd, accepted, stats)
-        stats["hypotheses"] += len(pending)
-        new = _select(st, models, targets, pending, accepted, p, stats)
-        stats["accepted_per_round"].append(len(new))
-        if not new and rnd > 0:
-            break
+def _output(st, accepted, p) -> list:
+    """Accepted hypotheses (accepted=True), then, with keep_rejected, the others scoring at least score_min
+    that duplicate none of those kept before them, down-weighted by rejected_score_factor."""
     for h in accepted:
         h.accepted = True
     out = list(accepted)
@@ -595,3 +643,31 @@ def detect_ours(xyz: np.ndarray, models: dict, p: dict, stats: dict) -> list:
             kept.append(h)
         out += kept
     return out
+
+
+def detect_ours(xyz: np.ndarray, classes: dict[str, OursClass], p: dict, stats: dict) -> list:
+    """Run the `ours` pipeline on local-frame points (N,3, m) with the per-class data of
+    `prepare_classes`; returns scored Hypothesis objects (accepted ones first, then down-weighted
+    others) with `accepted` set on each, and adds its counts and per-stage seconds to `stats`."""
+    t = time.perf_counter()
+    ground = seabed(xyz, p)
+    st = _State(xyz, ground, p)
+    stats["replaced"] = 0
+    stats["proposals_repeated"] = 0
+    stats["proposals_outcompeted"] = 0
+    stats["n_candidate_points"] = int(len(st.pts))
+    stats["seconds"]["ground"] += time.perf_counter() - t
+    if len(st.pts) < p["icp_min_points_n"]:
+        return []
+    accepted: list[Hypothesis] = []
+    for rnd in range(int(p["proposal_max_rounds_n"])):
+        props = _propose_upright(st, classes, p, rnd, accepted, stats)
+        pending = _hypotheses_upright(st, classes, props, p, rnd, accepted, stats)
+        if rnd > 0 and p["tumbled_inits"]:
+            pending += _hypotheses_tumbled(st, classes, p, rnd, accepted, stats)
+        stats["hypotheses"] += len(pending)
+        new = _select(st, classes, pending, accepted, p, stats)
+        stats["accepted_per_round"].append(len(new))
+        if not new and rnd > 0:
+            break
+    return _output(st, accepted, p)

@@ -36,20 +36,22 @@ from ...objects.catalog import canonical_box
 from .ground import seabed
 from .params import per_class
 from .proposals import sliding_windows, window_counts
-from .registration import IcpResult, _pcd, _valid_transform, icp_point_to_point
+from .registration import (MIN_RIGID_POINTS, IcpResult, convergence, icp_point_to_point, is_rigid_transform,
+                           point_cloud)
 from .scoring import Hypothesis
 
 SCORES = ("rmse", "fitness_rmse", "tight_fitness")
 
 
-def paper_template(model, which: str, tv_meta=None) -> list:
-    """Template point sets (canonical) the paper variant registers: ['nadir'] one view, ['all'] every view."""
+def paper_template(model, which: str) -> list:
+    """Template point sets (canonical frame, m) the paper variant registers: 'nadir' one view (the one
+    closest under the track at the smallest yaw with at least 3 points), 'all' every non-empty view."""
     if which == "all":
         return [v for v in model.views if len(v)]
     meta = model.view_meta
     order = sorted(range(len(model.views)), key=lambda k: (abs(meta["offset_m"][k]), abs(meta["yaw_rad"][k]), k))
     for k in order:
-        if len(model.views[k]) >= 3:
+        if len(model.views[k]) >= MIN_RIGID_POINTS:
             return [model.views[k]]
     raise ValueError(f"class {model.cls!r} has no template view with points")
 
@@ -74,13 +76,13 @@ def refine_point_to_point(template: np.ndarray, window: np.ndarray, res: IcpResu
     if p["icp_refine_iter"] <= 0 or p["icp_refine_corr_m"] <= 0:
         return res
     reg = o3d.pipelines.registration
-    src, tgt = _pcd(template), _pcd(window)
+    src, tgt = point_cloud(template), point_cloud(window)
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = res.R, res.t
     r = reg.registration_icp(src, tgt, float(p["icp_refine_corr_m"]), T, reg.TransformationEstimationPointToPoint(),
-                             reg.ICPConvergenceCriteria(1e-6, 1e-6, int(p["icp_refine_iter"])))
+                             convergence(p["icp_refine_iter"]))
     T = np.asarray(r.transformation)
-    if len(r.correspondence_set) < 3 or not _valid_transform(T):
+    if len(r.correspondence_set) < MIN_RIGID_POINTS or not is_rigid_transform(T):
         return res
     ev = reg.evaluate_registration(src, tgt, float(p["icp_max_corr_m"]), T)
     return IcpResult(T[:3, :3].copy(), T[:3, 3].copy(), float(ev.fitness), float(ev.inlier_rmse))
@@ -106,8 +108,85 @@ def is_duplicate(h, kept: list, radius_m: dict, p: dict) -> bool:
     return False
 
 
+def _class_windows(pts: np.ndarray, lo, hi, m, p: dict, stats: dict):
+    """The sliding windows (K,4) of class model `m` over the rectangle [lo, hi] (m) that hold enough
+    candidate points to be registered (all of them unless skip_empty_windows), and the window side (m)."""
+    side = m.footprint_m * p["window_scale"]
+    wins = sliding_windows(lo, hi, side, p["window_overlap"])
+    counts = window_counts(pts[:, :2], wins)
+    n_min = p["window_min_points_frac"] * float(np.median([len(v) for v in m.views]))
+    run = counts >= n_min if p["skip_empty_windows"] else np.ones(len(wins), dtype=bool)
+    stats["windows"] += len(wins)
+    stats["windows_skipped"] += int((~run).sum())
+    return wins[run], side
+
+
+def _best_fit(templates: list, window: np.ndarray, p: dict, stats: dict):
+    """The (IcpResult, template) of the lowest RMSE over the templates registered onto the window
+    points (centroid alignment + point-to-point ICP + refinement), or None when every ICP declines."""
+    best = None
+    for tpl in templates:
+        stats["icp_runs"] += 1
+        res = icp_point_to_point(tpl, window, p["icp_max_corr_m"], p["icp_max_iter"],
+                                 min_points=p["icp_min_points_n"], min_thickness_m=p["window_min_thickness_m"])
+        if res is None:
+            stats["icp_declined"] += 1
+            continue
+        res = refine_point_to_point(tpl, window, res, p)
+        if best is None or res.rmse_m < best[0].rmse_m:
+            best = (res, tpl)
+    return best
+
+
+def _hypothesis(cls: str, m, res: IcpResult, tpl: np.ndarray, window: np.ndarray, rmse_max: float,
+                p: dict) -> Hypothesis:
+    """An accepted fit as a scored Hypothesis (score: see the module doc, step 4)."""
+    box = canonical_box(m.vertices, res.t, matrix_to_quat(res.R), m.symmetry_order)
+    rel = 1.0 - res.rmse_m / rmse_max
+    f_t = 0.0
+    if p["score"] == "rmse":
+        score = rel
+    elif p["score"] == "fitness_rmse":
+        score = res.fitness * rel
+    else:
+        f_t = tight_fitness(tpl, cKDTree(window), res, p["score_corr_m"])
+        score = f_t
+    h = Hypothesis(cls=cls, R=res.R, t=res.t, box=box, rmse_m=res.rmse_m, fitness=res.fitness,
+                   f_t=f_t, score=float(score))
+    h.accepted = True
+    return h
+
+
+def _class_hypotheses(cls: str, m, pts: np.ndarray, tree: cKDTree, lo, hi, p: dict, stats: dict) -> list:
+    """Accepted fits of one class over its sliding windows (module doc, steps 2 to 4)."""
+    t = time.perf_counter()
+    wins, side = _class_windows(pts, lo, hi, m, p, stats)
+    # The template loses what the seabed removal takes from a scan: its points this low above its base.
+    templates = [thin(v[v[:, 2] > p["ground_min_height_m"]], p["template_voxel_m"])
+                 for v in paper_template(m, p["template_view"])]
+    rmse_max = per_class(p["rmse_max_m"], cls)
+    stats["seconds"]["proposals"] += time.perf_counter() - t
+    out = []
+    for w in wins:
+        t = time.perf_counter()
+        centre = 0.5 * (w[:2] + w[2:])
+        idx = np.asarray(tree.query_ball_point(centre, 0.5 * side, p=np.inf), dtype=np.int64)
+        idx.sort()
+        window = pts[idx]
+        best = _best_fit(templates, window, p, stats)
+        stats["seconds"]["registration"] += time.perf_counter() - t
+        if best is None or not (0 < best[0].rmse_m <= rmse_max) or best[0].fitness < p["fitness_min"]:
+            continue
+        t = time.perf_counter()
+        out.append(_hypothesis(cls, m, best[0], best[1], window, rmse_max, p))
+        stats["seconds"]["scoring"] += time.perf_counter() - t
+    return out
+
+
 def detect_paper(xyz: np.ndarray, models: dict, p: dict, stats: dict) -> list:
-    """Run the paper pipeline on local-frame points (N,3); returns scored Hypothesis objects."""
+    """Run the paper pipeline on local-frame points (N,3, m) with the class models (class -> ClassModel);
+    returns the scored Hypothesis objects that survive the duplicate removal, best first, and adds
+    its counts and per-stage seconds to `stats`."""
     if p["score"] not in SCORES:
         raise ValueError(f"paper parameter 'score' must be one of {SCORES}, got {p['score']!r}")
     t = time.perf_counter()
@@ -115,62 +194,13 @@ def detect_paper(xyz: np.ndarray, models: dict, p: dict, stats: dict) -> list:
     pts = xyz[hab > p["ground_min_height_m"]]
     stats["n_candidate_points"] = int(len(pts))
     stats["seconds"]["ground"] += time.perf_counter() - t
-    if len(pts) < 3:
+    if len(pts) < MIN_RIGID_POINTS:
         return []
     tree = cKDTree(pts[:, :2])
     lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
     dets = []
     for cls, m in models.items():
-        t = time.perf_counter()
-        side = m.footprint_m * p["window_scale"]
-        wins = sliding_windows(lo, hi, side, p["window_overlap"])
-        counts = window_counts(pts[:, :2], wins)
-        n_min = p["window_min_points_frac"] * float(np.median([len(v) for v in m.views]))
-        run = counts >= n_min if p["skip_empty_windows"] else np.ones(len(wins), dtype=bool)
-        stats["windows"] += len(wins)
-        stats["windows_skipped"] += int((~run).sum())
-        # The template loses what the seabed removal takes from a scan: its points this low above its base.
-        templates = [thin(v[v[:, 2] > p["ground_min_height_m"]], p["template_voxel_m"])
-                     for v in paper_template(m, p["template_view"])]
-        rmse_max = per_class(p["rmse_max_m"], cls)
-        stats["seconds"]["proposals"] += time.perf_counter() - t
-        for w in wins[run]:
-            t = time.perf_counter()
-            centre = 0.5 * (w[:2] + w[2:])
-            idx = np.asarray(tree.query_ball_point(centre, 0.5 * side, p=np.inf), dtype=np.int64)
-            idx.sort()
-            window = pts[idx]
-            best = None
-            for tpl in templates:
-                stats["icp_runs"] += 1
-                res = icp_point_to_point(tpl, window, p["icp_max_corr_m"], p["icp_max_iter"],
-                                         min_thickness_m=p["window_min_thickness_m"])
-                if res is None:
-                    stats["icp_declined"] += 1
-                    continue
-                res = refine_point_to_point(tpl, window, res, p)
-                if best is None or res.rmse_m < best[0].rmse_m:
-                    best = (res, tpl)
-            stats["seconds"]["registration"] += time.perf_counter() - t
-            if best is None or not (0 < best[0].rmse_m <= rmse_max) or best[0].fitness < p["fitness_min"]:
-                continue
-            t = time.perf_counter()
-            best, tpl = best
-            box = canonical_box(m.vertices, best.t, matrix_to_quat(best.R), m.symmetry_order)
-            rel = 1.0 - best.rmse_m / rmse_max
-            f_t = 0.0
-            if p["score"] == "rmse":
-                score = rel
-            elif p["score"] == "fitness_rmse":
-                score = best.fitness * rel
-            else:
-                f_t = tight_fitness(tpl, cKDTree(window), best, p["score_corr_m"])
-                score = f_t
-            h = Hypothesis(cls=cls, R=best.R, t=best.t, box=box, rmse_m=best.rmse_m, fitness=best.fitness,
-                           f_t=f_t, score=float(score))
-            stats["seconds"]["scoring"] += time.perf_counter() - t
-            h.accepted = True
-            dets.append(h)
+        dets += _class_hypotheses(cls, m, pts, tree, lo, hi, p, stats)
     stats["hypotheses"] += len(dets)
     t = time.perf_counter()
     dets.sort(key=lambda h: -h.score)

@@ -36,14 +36,33 @@ DEFAULTS: dict = {
     "proposal_max_rounds_n": 3,
     "proposal_min_points_frac": 0.15,
     "proposal_min_height_frac": 0.5,
+    "proposal_data_min_frac": 0.3,
+    "proposal_accepted_radius_frac": 0.5,
+    "top_start_min_lift_m": 0.25,
+    "coarse_probe_points_n": 150,
+    "occluder_margin_m": 0.5,
+    # Unexplained points: seeds of tumbled hypotheses.
+    "residual_cluster_cell_m": 0.2,
     "residual_min_points_n": 40,
     "residual_min_height_m": 0.35,
     "residual_seed_sigma_m": 0.35,
     "residual_seed_sep_m": 0.6,
     "residual_max_seeds_n": 12,
+    "residual_seed_cell_m": 0.1,
+    "residual_seed_pad_m": 1.0,
+    "residual_seed_min_density_frac": 0.25,
+    "residual_centroid_sep_m": 0.3,
+    "leftover_margin_m": 0.3,
+    "leftover_claim_factor": 2.0,
+    # Tumbled poses.
     "tumbled_inits": True,
     "tumbled_shift_q_min": 0.45,
     "tumbled_screen_keep_n": 4,
+    "tumbled_vertex_stride_n": 5,
+    "tumbled_azimuths_n": 8,
+    "tumbled_stable_tilt_range_deg": [60.0, 150.0],
+    "tumbled_stable_prob_min": 1e-3,
+    "tumbled_tilt_round_deg": 5.0,
     "icp_screen_stage": [0.4, 6, 0.2],
     # Registration.
     "crop_margin_m": 0.3,
@@ -65,6 +84,17 @@ DEFAULTS: dict = {
     "coverage_m": 0.08,
     "coverage_voxel_m": 0.1,
     "claim_m": 0.08,
+    "score_reach_margin_m": 0.15,
+    "candidate_box_margin_m": 0.1,
+    "coverage_z_band_m": 0.3,
+    "coverage_asked_min_frac": 0.2,
+    "hidden_footprint_margin_m": 0.05,
+    "hidden_above_bottom_m": 0.1,
+    "upright_tilt_max_deg": 30.0,
+    "virtual_view_incidences_deg": [0.0, 30.0, 50.0],
+    "virtual_view_azimuths_n": 4,
+    "virtual_view_min_points_n": 10,
+    "sink_vertex_stride_n": 7,
     "score_min": 0.15,
     "accept_min": 0.35,
     "new_min_frac": 0.5,
@@ -74,6 +104,12 @@ DEFAULTS: dict = {
     "rmse_max_m": {"*": 0.05},
     "keep_rejected": True,
     "rejected_score_factor": 0.1,
+    # Selection (explain-away).
+    "claim_crop_margin_m": 0.2,
+    "penetration_surface_stride_n": 3,
+    "replace_owner_min_frac": 0.2,
+    "refit_lost_min_frac": 0.1,
+    "refits_max_n": 2,
     # Duplicates (of the non-accepted hypotheses kept for recall).
     "duplicate_dist_m": 0.5,
 }
@@ -104,6 +140,7 @@ PAPER: dict = {
     "icp_max_iter": 30,
     "icp_refine_corr_m": 0.1,
     "icp_refine_iter": 20,
+    "icp_min_points_n": 10,
     "template_view": "nadir",
     "surface_spacing_m": 0.06,
     "template_voxel_m": 0.12,
@@ -146,12 +183,33 @@ DESCRIPTIONS: dict = {
     "proposal_min_height_frac": ("-", "skip proposals whose crop is lower above the seabed than this share of the "
                                       "class height (of the pose tried)"),
     "proposal_max_rounds_n": ("-", "proposal/accept rounds; later rounds use only unexplained points"),
+    "proposal_data_min_frac": ("-", "a cell's NCC counts only when at least this share of the kernel's support "
+                                    "cells hold data (not sonar shadow, not hidden under an accepted object)"),
+    "proposal_accepted_radius_frac": ("-", "proposals closer than this share of the class radius to an accepted "
+                                           "object of the same class are skipped"),
+    "top_start_min_lift_m": ("m", "a second, top-aligned start height is tried when the crop's highest point "
+                                  "lies more than this above the top of the object resting on the seabed "
+                                  "(it may rest on others); upright and tumbled starts"),
+    "coarse_probe_points_n": ("-", "the coarse quality is measured on about this many crop points (every "
+                                   "k-th point of the crop)"),
+    "occluder_margin_m": ("m", "accepted objects whose box comes within class radius + this of a hypothesis' "
+                               "position occlude it: template points hidden under them are not asked for"),
+    "residual_cluster_cell_m": ("m", "BEV cell of the 8-connected clustering of unexplained points"),
     "residual_min_points_n": ("-", "unexplained clusters with fewer points are ignored"),
     "residual_min_height_m": ("m", "unexplained clusters lower than this above the seabed are ignored"),
     "residual_seed_sigma_m": ("m", "Gaussian smoothing of the unexplained-point density whose peaks seed "
                                    "tumbled hypotheses"),
     "residual_seed_sep_m": ("m", "least distance between two such seeds"),
     "residual_max_seeds_n": ("-", "most seeds per cluster of unexplained points"),
+    "residual_seed_cell_m": ("m", "cell of the density raster of a cluster whose peaks are the seeds"),
+    "residual_seed_pad_m": ("m", "margin of that raster around the cluster (the smoothing is not cut off)"),
+    "residual_seed_min_density_frac": ("-", "density peaks lower than this share of the cluster's highest "
+                                            "density seed nothing"),
+    "residual_centroid_sep_m": ("m", "the cluster's centroid is a seed too unless a density peak is this close"),
+    "leftover_margin_m": ("m", "leftovers of an accepted object are looked for within its radius + this and its "
+                               "box grown by this"),
+    "leftover_claim_factor": ("-", "points within this x claim_m of an accepted object's mesh are its "
+                                   "leftovers (feet, edges, noise) and seed no tumbled hypothesis"),
     "tumbled_inits": ("-",
                       'try tumbled orientations (cone on its side, ring on edge, tilted tetrapods) on '
                       'unexplained clusters'),
@@ -159,15 +217,27 @@ DESCRIPTIONS: dict = {
     "tumbled_screen_keep_n": ("-",
                               'tumbled starts: only the best this many after the screening ICP go on to the coarse '
                               'stage'),
+    "tumbled_vertex_stride_n": ("-", "every n-th mesh vertex gives a tumbled pose's height and footprint "
+                                     "centre (start position)"),
+    "tumbled_azimuths_n": ("-", "classes tumbled by their stable poses (spec tumble mode 'stable_poses': rings, "
+                                "cones): azimuths (evenly spread) per stable tilt"),
+    "tumbled_stable_tilt_range_deg": ("deg", "those classes: stable resting poses (trimesh compute_stable_poses) "
+                                             "tilted within [lo, hi] from upright are tried; upright and upside-down "
+                                             "ones come from the upright start"),
+    "tumbled_stable_prob_min": ("-", "those classes: stable poses less probable than this (trimesh's quasi-static "
+                                     "drop probability) are left out"),
+    "tumbled_tilt_round_deg": ("deg", "those classes: stable tilts are rounded to multiples of this, so near-equal "
+                                      "poses are tried once"),
     "icp_screen_stage": ("m, -, m",
                          'screening ICP of many starts: [max correspondence distance, iterations, source voxel]'),
     "crop_margin_m": ("m", "scene crop radius = class radius + this"),
     "icp_stages": ("m, -, m",
                    'coarse-to-fine ICP: [max correspondence distance, iterations, source voxel] per stage'),
     "icp_tukey_k_frac": ("-", "Tukey kernel width as a share of the stage's correspondence distance"),
-    "icp_min_points_n": ("-", "fewest scene points (and correspondences) for a fit"),
+    "icp_min_points_n": ("-", "fewest points for a fit (ours: crop points and ICP correspondences; paper: "
+                              "template and window points)"),
     "surface_spacing_m": ("m", "spacing of the mesh surface samples (ICP target)"),
-    "template_voxel_m": ("m", "voxel that thins the template views"),
+    "template_voxel_m": ("m", "voxel that thins the registered template view (paper; ours does not use it)"),
     "icp_xy_starts_m": ("m", "shifted coarse restarts this far off the best start in +-x and +-y (0: off)"),
     "icp_shift_q_range": ("-",
                           'shifted restarts only when the best coarse quality (share of crop points within '
@@ -188,6 +258,25 @@ DESCRIPTIONS: dict = {
                                "tumbled poses) "
                                "for the template->scene fraction"),
     "claim_m": ("m", "scene points this close to an accepted object's mesh are explained by it"),
+    "score_reach_margin_m": ("m", "candidate points of a hypothesis are searched within half its box "
+                                  "diagonal + this of the box centre (xy)"),
+    "candidate_box_margin_m": ("m", "candidate points of a hypothesis: inside its posed box grown by this"),
+    "coverage_z_band_m": ("m", "scene points for the template->scene fraction lie within half the box height + "
+                               "this of the box centre's height"),
+    "coverage_asked_min_frac": ("-", "the template->scene fraction of a view is divided by at least this share "
+                                     "of its points (a view mostly hidden under accepted objects cannot score "
+                                     "high on its few visible points)"),
+    "hidden_footprint_margin_m": ("m", "a template point is hidden under an accepted object when inside its "
+                                       "footprint grown by this ..."),
+    "hidden_above_bottom_m": ("m", "... and no higher than this above its bottom"),
+    "upright_tilt_max_deg": ("deg", "poses tilted less than this from resting are upright: scored against the "
+                                    "template views; others against virtual views of the posed mesh"),
+    "virtual_view_incidences_deg": ("deg", "virtual views of tumbled poses: look directions off nadir "
+                                           "(0: nadir)"),
+    "virtual_view_azimuths_n": ("-", "virtual views: sides (evenly spread azimuths) each oblique direction "
+                                     "looks from"),
+    "virtual_view_min_points_n": ("-", "virtual views with fewer points are not used"),
+    "sink_vertex_stride_n": ("-", "every n-th mesh vertex is tested against the seabed (sink_max_m)"),
     "score_min": ("-", "hypotheses scoring less are dropped"),
     "accept_min": ("-", "score needed to accept a hypothesis as an object (explain-away)"),
     "new_min_frac": ("-", "share of a hypothesis' inliers not yet explained needed to accept it"),
@@ -200,6 +289,14 @@ DESCRIPTIONS: dict = {
     "rmse_max_m": ("m", "per class: largest inlier RMSE of an accepted fit"),
     "keep_rejected": ("-", "also output non-accepted hypotheses (score scaled down) for recall at low rank"),
     "rejected_score_factor": ("-", "score factor of non-accepted hypotheses"),
+    "claim_crop_margin_m": ("m", "an accepted object claims points within class radius + this (and within "
+                                 "claim_m of its mesh)"),
+    "penetration_surface_stride_n": ("-", "every n-th surface sample is tested for penetration_max_frac"),
+    "replace_owner_min_frac": ("-", "a hypothesis may replace the accepted objects owning at least this share "
+                                    "of its inliers (replace_factor)"),
+    "refit_lost_min_frac": ("-", "a pending hypothesis that lost more than this share of its candidate points to "
+                                 "a newly accepted object is refitted on the rest (else re-scored)"),
+    "refits_max_n": ("-", "most refits of one hypothesis"),
     "window_scale": ("-", "window side = class footprint (largest horizontal extent) x this"),
     "window_overlap": ("-", "overlap of adjacent windows (0..1)"),
     "window_min_points_frac": ("-",

@@ -106,10 +106,11 @@ def _corr(a: np.ndarray, k: np.ndarray) -> np.ndarray:
     return fftconvolve(a.astype(np.float32, copy=False), k[::-1, ::-1].astype(np.float32), mode="same")
 
 
-def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float):
+def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float, min_data_frac: float):
     """Masked normalised cross-correlation (Padfield 2012) of the height raster with each kernel.
 
-    Cells without data (NaN: sonar shadow, or hidden under an accepted object) are left out of the sums.
+    Cells without data (NaN: sonar shadow, or hidden under an accepted object) are left out of the sums;
+    a cell's NCC counts (else -1) only where at least `min_data_frac` of the kernel's support holds data.
     Returns (best NCC per cell, index of the best kernel per cell, share of the support's cells with
     data that hold points above `occupied_min_m`).
     """
@@ -132,7 +133,7 @@ def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float):
         st, stt, sft = _corr(d, t), _corr(d, t * t), _corr(f, t)
         num = sft - sf * st / n
         den = np.sqrt(np.clip((sff - sf * sf / n) * (stt - st * st / n), 1e-12, None))
-        ncc = np.where(n >= 0.3 * ker.support.sum(), num / den, -1.0)
+        ncc = np.where(n >= min_data_frac * ker.support.sum(), num / den, -1.0)
         better = ncc > best
         best[better] = ncc[better]
         arg[better] = k

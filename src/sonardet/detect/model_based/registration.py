@@ -21,11 +21,19 @@ import open3d as o3d
 
 reg = o3d.pipelines.registration
 
+#: ICP stops when the relative change of fitness and of inlier RMSE between iterations falls below these.
+ICP_RELATIVE_FITNESS = 1e-6
+ICP_RELATIVE_RMSE = 1e-6
+#: Largest deviation of a result's rotation block from a proper rotation (|det - 1|, |R^T R - I|).
+ROTATION_TOLERANCE = 1e-3
+#: Fewest points (or ICP correspondences) that fix a rigid 3D transform.
+MIN_RIGID_POINTS = 3
+
 
 @dataclass
 class IcpResult:
-    """Outcome of one ICP run: pose (canonical -> scene), Open3D fitness (share of source points with a
-    correspondence, 0..1) and inlier RMSE (m) of the last stage, iterations run."""
+    """Outcome of one ICP run: pose R (3,3), t (3,) m (canonical -> scene), Open3D fitness (share of
+    source points with a correspondence, 0..1) and inlier RMSE (m) of the last stage."""
 
     R: np.ndarray
     t: np.ndarray
@@ -42,8 +50,9 @@ def degenerate_reason(points: np.ndarray, min_points: int, min_spread_m: float =
     set (the third principal spread below it: a patch of seabed or any flat surface).
     """
     p = np.asarray(points, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3 or len(p) < max(3, int(min_points)):
-        return f"too few points ({len(p)} < {max(3, int(min_points))})"
+    need = max(MIN_RIGID_POINTS, int(min_points))
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < need:
+        return f"too few points ({len(p)} < {need})"
     if not np.all(np.isfinite(p)):
         return "non-finite coordinates"
     c = p - p.mean(0)
@@ -56,18 +65,28 @@ def degenerate_reason(points: np.ndarray, min_points: int, min_spread_m: float =
     return None
 
 
-def _pcd(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometry.PointCloud:
+def point_cloud(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometry.PointCloud:
+    """An Open3D point cloud (float64) of points (K,3) in any frame (m), with normals (K,3) if given."""
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
     if normals is not None:
         pcd.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, dtype=np.float64))
     return pcd
 
 
-def _valid_transform(T: np.ndarray) -> bool:
+def is_rigid_transform(T: np.ndarray) -> bool:
+    """Whether a 4x4 transform (ICP output) is finite and its rotation block a proper rotation within
+    `ROTATION_TOLERANCE` (determinant 1, orthonormal columns): no reflection, shear or NaN."""
     if not np.all(np.isfinite(T)):
         return False
     R = T[:3, :3]
-    return abs(np.linalg.det(R) - 1.0) < 1e-3 and float(np.abs(R.T @ R - np.eye(3)).max()) < 1e-3
+    return (abs(np.linalg.det(R) - 1.0) < ROTATION_TOLERANCE
+            and float(np.abs(R.T @ R - np.eye(3)).max()) < ROTATION_TOLERANCE)
+
+
+def convergence(max_iter: int):
+    """Open3D ICP convergence criteria: `max_iter` iterations at most, stopping earlier at the relative
+    tolerances `ICP_RELATIVE_FITNESS` and `ICP_RELATIVE_RMSE`."""
+    return reg.ICPConvergenceCriteria(ICP_RELATIVE_FITNESS, ICP_RELATIVE_RMSE, int(max_iter))
 
 
 def icp_point_to_point(template: np.ndarray, window: np.ndarray, max_corr_m: float, max_iter: int,
@@ -88,11 +107,10 @@ def icp_point_to_point(template: np.ndarray, window: np.ndarray, max_corr_m: flo
     T0 = np.eye(4)
     T0[:3, :3] = R0
     T0[:3, 3] = window.mean(0) - R0 @ template.mean(0)
-    res = reg.registration_icp(_pcd(template), _pcd(window), float(max_corr_m), T0,
-                               reg.TransformationEstimationPointToPoint(),
-                               reg.ICPConvergenceCriteria(1e-6, 1e-6, int(max_iter)))
+    res = reg.registration_icp(point_cloud(template), point_cloud(window), float(max_corr_m), T0,
+                               reg.TransformationEstimationPointToPoint(), convergence(max_iter))
     T = np.asarray(res.transformation)
-    if not _valid_transform(T) or len(res.correspondence_set) < 3:
+    if not is_rigid_transform(T) or len(res.correspondence_set) < MIN_RIGID_POINTS:
         return None
     return IcpResult(T[:3, :3].copy(), T[:3, 3].copy(), float(res.fitness), float(res.inlier_rmse))
 
@@ -102,7 +120,7 @@ class SurfaceTarget:
 
     def __init__(self, points: np.ndarray, normals: np.ndarray):
         self.points = np.asarray(points, dtype=np.float64)
-        self.pcd = _pcd(self.points, normals)
+        self.pcd = point_cloud(self.points, normals)
 
 
 class SceneSource:
@@ -112,7 +130,7 @@ class SceneSource:
         self.points = np.asarray(points, dtype=np.float64)
         self.min_points = int(min_points)
         self.reason = degenerate_reason(self.points, min_points)
-        self._full = _pcd(self.points) if self.reason is None else None
+        self._full = point_cloud(self.points) if self.reason is None else None
         self._thin: dict = {}
 
     def at(self, voxel_m: float) -> o3d.geometry.PointCloud:
@@ -152,10 +170,9 @@ def icp_scene_to_model(scene_pts, target, R0: np.ndarray, t0: np.ndarray, stages
     for (max_corr, n_iter, voxel), tgt in zip(stages, targets):
         src = src_all.at(voxel)
         est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=float(tukey_k_factor * max_corr)))
-        res = reg.registration_icp(src, tgt.pcd, float(max_corr), T, est,
-                                   reg.ICPConvergenceCriteria(1e-6, 1e-6, int(n_iter)))
+        res = reg.registration_icp(src, tgt.pcd, float(max_corr), T, est, convergence(n_iter))
         T_new = np.asarray(res.transformation)
-        if not _valid_transform(T_new) or len(res.correspondence_set) < min_points:
+        if not is_rigid_transform(T_new) or len(res.correspondence_set) < min_points:
             return None
         T = T_new
     if res is None:

@@ -3,17 +3,18 @@
 Layout as OpenPCDet: :mod:`.backbone` (PointNet++ SA layers with D-FPS / S-FPS), :mod:`.head` (3DSSD
 vote head), :mod:`.box_coder` (symmetry-aware bin/residual coder), :mod:`.losses`, :mod:`.model` (the
 detector, post-processing), :mod:`.data` (ground filter, sampling, augmentation), :mod:`.config`
-(``DEFAULTS`` / ``PAPER`` hyper-parameters), :mod:`.trainer` (``train`` / ``infer``), :mod:`.ops` (point
+(``DEFAULTS`` / ``PAPER`` hyper-parameters), :mod:`.trainer` (``train``, ``TrainedSASA`` (a saved model
+loaded once, called per point cloud), ``infer``), :mod:`.ops` (point
 operators). Reference: blakechen97/SASA. The network modules (torch) are imported on first use.
 """
 
 from .config import DEFAULTS, PAPER, resolve_params
 
-__all__ = ["DEFAULTS", "PAPER", "resolve_params", "SASADetector", "train", "infer", "detect_points", "read_model",
-           "ConfigMismatchError"]
+__all__ = ["DEFAULTS", "PAPER", "resolve_params", "SASADetector", "TrainedSASA", "train", "infer", "detect_points",
+           "read_model", "ConfigMismatchError"]
 
-_LAZY = {"SASADetector": "model", "train": "trainer", "infer": "trainer", "detect_points": "trainer",
-         "read_model": "trainer", "ConfigMismatchError": "trainer"}
+_LAZY = {"SASADetector": "model", "TrainedSASA": "trainer", "train": "trainer", "infer": "trainer",
+         "detect_points": "trainer", "read_model": "trainer", "ConfigMismatchError": "trainer"}
 
 
 def __getattr__(name):

@@ -66,6 +66,7 @@ class MLP(nn.Module):
         self.out_ch = c
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(..., in_ch) -> (..., widths[-1])."""
         shape = x.shape[:-1]
         for lin, bn in zip(self.linears, self.norms):
             x = torch.relu(bn(lin(x).reshape(-1, lin.out_features))).reshape(*shape, lin.out_features)
@@ -97,6 +98,7 @@ class GroupedMLP(nn.Module):
         self.out_ch = self.rest.out_ch
 
     def forward(self, xyz, new_xyz, features, idx, cnt):
+        """Grouped features (B, M, w_last) of the centres (see the class docstring)."""
         rel = index_points(xyz, idx) - new_xyz.unsqueeze(2)  # (B, M, K, 3), metres
         h = self.w_xyz(rel)
         if self.w_feat is not None and features is not None:
@@ -147,6 +149,7 @@ class SALayer(nn.Module):
 
     @property
     def npoint(self) -> int:
+        """Centres this layer samples (all segments together)."""
         return sum(s[0] for s in self.segments)
 
     def sample(self, xyz: torch.Tensor, scores: torch.Tensor | None) -> torch.Tensor:
@@ -215,6 +218,7 @@ class SASABackbone(nn.Module):
         self.n_candidates = n3 // 2
 
     def forward(self, xyz: torch.Tensor, features: torch.Tensor | None) -> dict:
+        """Run the SA layers in turn (see the class docstring for the returned dict)."""
         xyzs, feats, logits, idxs = [], [], [], []
         scores = None
         for layer in self.layers:

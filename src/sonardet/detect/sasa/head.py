@@ -57,6 +57,7 @@ class VoteHead(nn.Module):
         nn.init.constant_(self.cls_layers[-1].bias, -2.0)
 
     def forward(self, xyz: torch.Tensor, features: torch.Tensor) -> dict:
+        """Votes, classification logits and box codes of the candidates (see the class docstring)."""
         mc = self.n_candidates
         cand = xyz[:, :mc].contiguous()
         offset = self.vote_layer(features[:, :mc])  # (B, Mc, 3)

@@ -126,6 +126,9 @@ class SASALoss:
 
     # ------------------------------------------------------------------ segmentation (SASA)
     def segmentation_loss(self, xyzs, logits, boxes, valid):
+        """Foreground segmentation loss of the SA layers with logits: per layer, binary cross-entropy of
+        "inside a ground-truth box" (points in the margin `seg_extra_width_m` around a box ignored),
+        weighted by `seg_layer_weights`. Returns (total loss tensor, {segN, segN_recall} floats)."""
         total = boxes.new_zeros(())
         parts = {}
         for li, (xyz, lg) in enumerate(zip(xyzs, logits)):

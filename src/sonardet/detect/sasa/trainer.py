@@ -4,9 +4,12 @@
   (one row per epoch) and ``train.json`` (time, steps, seconds per step, peak memory, validation mAP)
   into ``out_dir``; ``checkpoint.pt`` is written after every epoch and resumed from (a checkpoint of
   another config or another training set is refused with a message naming the setting).
-* :func:`infer` -- runs a saved model on scene files and returns ``{scene_id: detections}`` in the
-  scene frame (``[{cls, box, score, extras}]``, the format of ``sonardet.io.annotations``).
-* :func:`detect_points` -- the same for an in-memory cloud (N, 3) float64 (e.g. a user's survey).
+* :class:`TrainedSASA` -- a saved model loaded once (``TrainedSASA.load(model.pt)``) and called per
+  point cloud: ``sasa(xyz, scene_id) -> (detections, stats)``; detections in the frame of ``xyz``
+  (``[{cls, box, score, extras}]``, the format of ``sonardet.io.annotations``).
+* :func:`infer` -- runs a saved model on scene files and returns ``({scene_id: detections}, timing)``
+  in the scene frame.
+* :func:`detect_points` -- one in-memory cloud (N, 3) float64 (e.g. a user's survey) with a saved model.
 
 Determinism: the model is initialised from ``seed``; the order of the scenes in every epoch, the
 point samples and the augmentation of every step come from seeds derived from (``seed``, epoch,
@@ -26,6 +29,7 @@ import math
 import resource
 import time
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -58,7 +62,7 @@ from .model import SASADetector
 log = logging.getLogger(__name__)
 
 __all__ = ["train", "infer", "detect_points", "read_model", "resolve_device", "ConfigMismatchError",
-           "evaluate_scenes", "peak_memory_mb"]
+           "TrainedSASA", "evaluate_scenes", "peak_memory_mb"]
 
 CHECKPOINT_FORMAT = "sonardet-sasa"
 CHECKPOINT_VERSION = 1
@@ -227,22 +231,81 @@ def read_model(model_path, params: dict | None = None, device=None) -> tuple[SAS
     return model, eff
 
 
-def infer(model_path, scene_npz_paths, params: dict | None = None, device=None, progress: bool | None = None) -> dict:
-    """Detect objects in scene files with a trained model.
+class TrainedSASA:
+    """A trained SASA model ready for inference, called per point cloud.
+
+    model: a :class:`SASADetector` (put in eval mode when it detects); params: its effective
+    parameters (resolved; inference keys such as score_thresh and NMS apply); device: where it runs.
+    Usually made with :meth:`load` from a ``model.pt`` written by :func:`train`, once, then called on
+    each scene or survey tile. Each cloud's point sample is drawn from a seed derived from (``seed``,
+    scene id), so the same cloud and scene id give the same detections on every call.
+    """
+
+    def __init__(self, model: SASADetector, params: dict, device=None):
+        self.model = model
+        self.params = params
+        self.device = resolve_device(device)
+
+    @classmethod
+    def load(cls, model_path, params: dict | None = None, device=None) -> TrainedSASA:
+        """Load ``model.pt`` (see :func:`read_model` for which keys of ``params`` may differ from the
+        model's) and set torch's CPU threads when ``params`` sets ``num_threads``."""
+        device = resolve_device(device)
+        model, eff = read_model(model_path, params, device)
+        _set_threads(eff)
+        return cls(model, eff, device)
+
+    @property
+    def classes(self) -> list[str]:
+        """Class names, in the order of the model's logits."""
+        return list(self.params["classes"])
+
+    def detect_scene(self, scene: PreparedScene) -> list[dict]:
+        """Detections of a prepared scene (`data.prepare_scene` / `data.prepare_points`), in the frame
+        of the points it was prepared from: [{cls, box [x,y,z,l,w,h,yaw] (m, rad), score, extras
+        {class_scores}}], sorted by descending score."""
+        return _detect_prepared(self.model, scene, self.params, self.device)
+
+    def detect_file(self, scene_npz_path) -> tuple[str, list[dict]]:
+        """(scene id, detections in the scene frame) of a scene ``.npz`` file (labels not needed)."""
+        scene = prepare_scene(scene_npz_path, self.params, with_labels=False)
+        return scene.scene_id, self.detect_scene(scene)
+
+    def __call__(self, xyz: np.ndarray, scene_id: str = "points") -> tuple[list[dict], dict]:
+        """Detect objects in a cloud ``xyz`` (N, 3) float64 (any frame incl. UTM, m, z up).
+
+        Returns (detections in the frame of ``xyz``, see :meth:`detect_scene`; stats {n_points,
+        n_detections, device, seconds {total}}). ``scene_id`` seeds the point sample.
+        """
+        t0 = time.perf_counter()
+        keep, local, height, origin = prepare_points(xyz, self.params)
+        scene = PreparedScene(scene_id, local, height, np.full(len(local), -1, np.int64),
+                              np.zeros((0, 7), np.float32), np.zeros(0, np.int64), np.zeros(0, np.int64), origin,
+                              len(xyz))
+        dets = self.detect_scene(scene)
+        stats = {"n_points": int(len(xyz)), "n_detections": len(dets), "device": str(self.device),
+                 "seconds": {"total": time.perf_counter() - t0}}
+        return dets, stats
+
+
+def infer(model_path, scene_npz_paths, params: dict | None = None, device=None,
+          progress: bool | None = None) -> tuple[dict, dict]:
+    """Detect objects in scene files with a trained model (loaded once, see :class:`TrainedSASA`).
 
     Args:
         model_path: ``model.pt`` written by :func:`train`.
         scene_npz_paths: scene ``.npz`` files (labels are not needed).
         params: optional parameters; only inference/runtime keys may differ from the model's.
         device: None = cuda if available else cpu.
+        progress: show a progress bar (None: the model's ``progress`` setting).
     Returns:
-        {scene_id: [{"cls", "box" [x, y, z, l, w, h, yaw] (scene frame, m, rad), "score", "extras"}]},
-        sorted by descending score. Timing: ``infer.last_timing`` holds seconds per scene.
+        (detections, timing): detections {scene_id: [{"cls", "box" [x, y, z, l, w, h, yaw] (scene
+        frame, m, rad), "score", "extras"}]}, each list sorted by descending score; timing {n_scenes,
+        s_per_scene (mean seconds per scene: reading, preparing and detecting; None without scenes),
+        device, peak_rss_mb (and peak_cuda_mb on CUDA)}.
     """
-    device = resolve_device(device)
-    model, eff = read_model(model_path, params, device)
-    _set_threads(eff)
-    show = eff["progress"] if progress is None else progress
+    sasa = TrainedSASA.load(model_path, params, device)
+    show = sasa.params["progress"] if progress is None else progress
     out, times = {}, []
     try:
         from tqdm import tqdm
@@ -252,32 +315,167 @@ def infer(model_path, scene_npz_paths, params: dict | None = None, device=None, 
     bar = tqdm(it, desc="sasa infer", disable=not show) if tqdm else it
     for p in bar:
         t0 = time.perf_counter()
-        scene = prepare_scene(p, eff, with_labels=False)
-        out[scene.scene_id] = _detect_prepared(model, scene, eff, device)
+        scene_id, dets = sasa.detect_file(p)
+        out[scene_id] = dets
         times.append(time.perf_counter() - t0)
-    infer.last_timing = {"n_scenes": len(times), "s_per_scene": float(np.mean(times)) if times else None,
-                         "device": str(device), **peak_memory_mb(device)}
-    return out
-
-
-infer.last_timing = {}
+    timing = {"n_scenes": len(times), "s_per_scene": float(np.mean(times)) if times else None,
+              "device": str(sasa.device), **peak_memory_mb(sasa.device)}
+    return out, timing
 
 
 def detect_points(model_path, xyz: np.ndarray, params: dict | None = None, device=None, scene_id: str = "points"):
-    """Detect objects in an in-memory cloud ``xyz`` (N, 3) float64 (any frame, m, z up).
-
-    Returns the detections in the frame of ``xyz`` (see :func:`infer`).
+    """Detect objects in an in-memory cloud ``xyz`` (N, 3) float64 (any frame, m, z up) with the model
+    ``model_path``. Returns the detections in the frame of ``xyz`` (see :meth:`TrainedSASA.detect_scene`);
+    to run one model on many clouds, load a :class:`TrainedSASA` once instead.
     """
-    device = resolve_device(device)
-    model, eff = read_model(model_path, params, device)
-    keep, local, height, origin = prepare_points(xyz, eff)
-    scene = PreparedScene(scene_id, local, height, np.full(len(local), -1, np.int64), np.zeros((0, 7), np.float32),
-                          np.zeros(0, np.int64), np.zeros(0, np.int64), origin, len(xyz))
-    return _detect_prepared(model, scene, eff, device)
+    return TrainedSASA.load(model_path, params, device)(xyz, scene_id)[0]
 
 
-def _state(obj) -> dict:
-    return obj.state_dict() if obj is not None else None
+@dataclass
+class _Progress:
+    """Where a training run stands: next epoch, per-epoch rows, training seconds and steps so far."""
+
+    epoch: int = 0
+    history: list = field(default_factory=list)
+    train_s: float = 0.0
+    steps: int = 0
+
+
+def _checkpoint_to_resume(ckpt_path: Path, settings: dict, resume: bool) -> dict | None:
+    """The checkpoint to resume from (None: start afresh); refused when made with other settings."""
+    if not (resume and ckpt_path.exists()):
+        return None
+    ckpt = _load(ckpt_path, "cpu")
+    diff = describe_difference(ckpt["settings"], settings)
+    if diff:
+        raise ConfigMismatchError(f"{ckpt_path}: refusing to resume, the checkpoint was made with other "
+                                  f"settings ({diff}); delete it (or pass resume=False) to start afresh")
+    return ckpt
+
+
+def _prepare_training_scenes(train_paths: list[str], val_paths: list[str], params: dict):
+    """Prepared training and validation scenes and the preparation time (s); warns when a training
+    scene keeps fewer points than n_points (it will be padded)."""
+    t_prep = time.perf_counter()
+    scenes = [prepare_scene(p, params) for p in train_paths]
+    val_scenes = [prepare_scene(p, params) for p in val_paths]
+    prep_s = time.perf_counter() - t_prep
+    short = [s.scene_id for s in scenes if len(s.xyz) < int(params["n_points"])]
+    if short:
+        warnings.warn(f"{len(short)} training scene(s) have fewer kept points than n_points="
+                      f"{params['n_points']} and will be padded: {', '.join(short[:5])}", stacklevel=3)
+    return scenes, val_scenes, prep_s
+
+
+def _optimiser(model: SASADetector, params: dict, total_steps: int):
+    """AdamW with a one-cycle schedule (cosine annealing, cycled momentum) over `total_steps` steps."""
+    opt = torch.optim.AdamW(model.parameters(), lr=float(params["lr"]) / float(params["div_factor"]),
+                            betas=(float(params["moms"][0]), 0.99), weight_decay=float(params["weight_decay"]))
+    sched = torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=float(params["lr"]), total_steps=total_steps, pct_start=float(params["pct_start"]),
+        anneal_strategy="cos", cycle_momentum=True, base_momentum=float(params["moms"][1]),
+        max_momentum=float(params["moms"][0]), div_factor=float(params["div_factor"]),
+        final_div_factor=float(params["final_div_factor"]))
+    return opt, sched
+
+
+def _restore(ckpt: dict | None, model, opt, sched) -> _Progress:
+    """Load a checkpoint's weights, optimiser and schedule; its progress (a fresh one without checkpoint)."""
+    if ckpt is None:
+        return _Progress()
+    model.load_state_dict(ckpt["state_dict"])
+    opt.load_state_dict(ckpt["optimizer"])
+    sched.load_state_dict(ckpt["scheduler"])
+    return _Progress(int(ckpt["epoch"]), list(ckpt["history"]), float(ckpt["train_s"]), int(ckpt["steps"]))
+
+
+def _train_epoch(model, opt, sched, scenes: list, params: dict, epoch: int, device, bar) -> dict:
+    """One pass over the training scenes (order, point samples, augmentation and domain randomisation
+    seeded from (seed, epoch, step)); returns the sums of the loss parts over its steps."""
+    seed, bs = int(params["seed"]), int(params["batch_size"])
+    model.train()
+    order = _rng(seed, "order", epoch).permutation(len(scenes))
+    sums: dict[str, float] = {}
+    for step in range(math.ceil(len(scenes) / bs)):
+        sel = [scenes[i] for i in order[step * bs:(step + 1) * bs]]
+        rng = _rng(seed, "step", epoch, step)
+        dr_rng = _rng(seed, "dr", epoch, step) if params["dr_enabled"] else None
+        batch = _make_batch(sel, params, rng, device, train_aug=True, dr_rng=dr_rng)
+        out = model(batch)
+        loss, parts = model.loss(out, batch)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"non-finite training loss at epoch {epoch}, step {step}: {parts}")
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), float(params["grad_clip"]))
+        opt.step()
+        sched.step()
+        for k, v in parts.items():
+            sums[k] = sums.get(k, 0.0) + float(v)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(epoch=epoch + 1, loss=f"{parts['loss']:.3f}")
+    return sums
+
+
+def _validate(model, val_scenes: list, val_paths: list[str], params: dict, device) -> dict:
+    """Validation metrics (`evaluate_scenes`) of the model on the validation scenes."""
+    dets = {s.scene_id: _detect_prepared(model, s, params, device) for s in val_scenes}
+    return evaluate_scenes(dets, val_paths, params)
+
+
+def _training_summary(params: dict, device, scenes: list, val_scenes: list, train_ids: list[str],
+                      run: _Progress, prep_s: float, val_s: float | None, val: dict | None) -> dict:
+    """The summary written to train.json (times in s, memory in MB)."""
+    n_kept = [len(s.xyz) for s in scenes]
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "method": "sasa",
+        "device": str(device),
+        "torch_threads": torch.get_num_threads(),
+        "n_train_scenes": len(scenes),
+        "n_val_scenes": len(val_scenes),
+        "train_scenes": train_ids,
+        "epochs": int(params["epochs"]),
+        "batch_size": int(params["batch_size"]),
+        "steps": run.steps,
+        "train_time_s": run.train_s,
+        "s_per_step": run.train_s / max(run.steps, 1),
+        "prepare_time_s": prep_s,
+        "kept_points_per_scene": {"min": int(min(n_kept)), "median": float(np.median(n_kept)), "max": int(max(n_kept))},
+        "val_infer_s_per_scene": val_s,
+        "val": val,
+        "final_loss": run.history[-1] if run.history else None,
+        **peak_memory_mb(device),
+        "params": params,
+    }
+
+
+def _progress_bar(params: dict, total_steps: int, done_steps: int, n_scenes: int):
+    """A tqdm bar over the training steps (None without tqdm)."""
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover
+        return None
+    return tqdm(total=total_steps, initial=done_steps, desc=f"sasa train ({n_scenes} scenes)",
+                disable=not params["progress"])
+
+
+def _final_validation(model, val_scenes: list, val_paths: list[str], params: dict, device, run: _Progress,
+                      out_dir: Path):
+    """Validation after the last epoch: (metrics for train.json, inference seconds per scene), both None
+    without validation scenes; the last loss.csv row gets the validation mAP."""
+    if not val_scenes:
+        return None, None
+    t0 = time.perf_counter()
+    m = _validate(model, val_scenes, val_paths, params, device)
+    val_s = (time.perf_counter() - t0) / len(val_scenes)
+    val = {"mAP_headline": m["mAP_headline"], "mAP": m["mAP"],
+           "AP_headline": {c: m["per_class"][c]["AP"][repr(0.5)] for c in params["classes"]}}
+    if run.history:
+        run.history[-1]["val_mAP"] = m["mAP_headline"]
+        atomic_write_text(out_dir / "loss.csv", _csv_text(run.history))
+    return val, val_s
 
 
 def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, device=None, resume: bool = True) -> dict:
@@ -299,7 +497,6 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
     _set_threads(params)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    seed = int(params["seed"])
     train_paths = sorted(str(p) for p in train_scene_paths)
     val_paths = sorted(str(p) for p in val_scene_paths or [])
     if not train_paths:
@@ -307,129 +504,40 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
     train_ids = [Path(p).stem for p in train_paths]
     settings = _checkpoint_settings(params, train_ids)
     ckpt_path = out_dir / "checkpoint.pt"
+    ckpt = _checkpoint_to_resume(ckpt_path, settings, resume)
+    scenes, val_scenes, prep_s = _prepare_training_scenes(train_paths, val_paths, params)
 
-    ckpt = None
-    if resume and ckpt_path.exists():
-        ckpt = _load(ckpt_path, "cpu")
-        diff = describe_difference(ckpt["settings"], settings)
-        if diff:
-            raise ConfigMismatchError(f"{ckpt_path}: refusing to resume, the checkpoint was made with other "
-                                      f"settings ({diff}); delete it (or pass resume=False) to start afresh")
-
-    t_prep = time.perf_counter()
-    scenes = [prepare_scene(p, params) for p in train_paths]
-    val_scenes = [prepare_scene(p, params) for p in val_paths]
-    prep_s = time.perf_counter() - t_prep
-    n_kept = [len(s.xyz) for s in scenes]
-    short = [s.scene_id for s in scenes if len(s.xyz) < int(params["n_points"])]
-    if short:
-        warnings.warn(f"{len(short)} training scene(s) have fewer kept points than n_points="
-                      f"{params['n_points']} and will be padded: {', '.join(short[:5])}", stacklevel=2)
-
-    torch.manual_seed(seed)
+    torch.manual_seed(int(params["seed"]))
     model = SASADetector(params).to(device)
-    bs = int(params["batch_size"])
-    steps_per_epoch = math.ceil(len(scenes) / bs)
+    steps_per_epoch = math.ceil(len(scenes) / int(params["batch_size"]))
     epochs = int(params["epochs"])
-    total_steps = steps_per_epoch * epochs
-    opt = torch.optim.AdamW(model.parameters(), lr=float(params["lr"]) / float(params["div_factor"]),
-                            betas=(float(params["moms"][0]), 0.99), weight_decay=float(params["weight_decay"]))
-    sched = torch.optim.lr_scheduler.OneCycleLR(
-        opt, max_lr=float(params["lr"]), total_steps=total_steps, pct_start=float(params["pct_start"]),
-        anneal_strategy="cos", cycle_momentum=True, base_momentum=float(params["moms"][1]),
-        max_momentum=float(params["moms"][0]), div_factor=float(params["div_factor"]),
-        final_div_factor=float(params["final_div_factor"]))
-    start_epoch, history, train_s, steps_done = 0, [], 0.0, 0
+    opt, sched = _optimiser(model, params, steps_per_epoch * epochs)
+    run = _restore(ckpt, model, opt, sched)
     if ckpt is not None:
-        model.load_state_dict(ckpt["state_dict"])
-        opt.load_state_dict(ckpt["optimizer"])
-        sched.load_state_dict(ckpt["scheduler"])
-        start_epoch, history = int(ckpt["epoch"]), list(ckpt["history"])
-        train_s, steps_done = float(ckpt["train_s"]), int(ckpt["steps"])
-        log.info("resuming %s at epoch %d/%d", ckpt_path, start_epoch, epochs)
-
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover
-        tqdm = None
-    bar = tqdm(total=total_steps, initial=start_epoch * steps_per_epoch, desc=f"sasa train ({len(scenes)} scenes)",
-               disable=not params["progress"]) if tqdm else None
+        log.info("resuming %s at epoch %d/%d", ckpt_path, run.epoch, epochs)
+    bar = _progress_bar(params, steps_per_epoch * epochs, run.epoch * steps_per_epoch, len(scenes))
     val_every = int(params.get("val_every_epochs") or 0)
-    for epoch in range(start_epoch, epochs):
-        model.train()
+    for epoch in range(run.epoch, epochs):
         t_ep = time.perf_counter()
-        order = _rng(seed, "order", epoch).permutation(len(scenes))
-        sums: dict[str, float] = {}
-        for step in range(steps_per_epoch):
-            sel = [scenes[i] for i in order[step * bs:(step + 1) * bs]]
-            rng = _rng(seed, "step", epoch, step)
-            dr_rng = _rng(seed, "dr", epoch, step) if params["dr_enabled"] else None
-            batch = _make_batch(sel, params, rng, device, train_aug=True, dr_rng=dr_rng)
-            out = model(batch)
-            loss, parts = model.loss(out, batch)
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"non-finite training loss at epoch {epoch}, step {step}: {parts}")
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), float(params["grad_clip"]))
-            opt.step()
-            sched.step()
-            steps_done += 1
-            for k, v in parts.items():
-                sums[k] = sums.get(k, 0.0) + float(v)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(epoch=epoch + 1, loss=f"{parts['loss']:.3f}")
+        sums = _train_epoch(model, opt, sched, scenes, params, epoch, device, bar)
+        run.steps += steps_per_epoch
         ep_s = time.perf_counter() - t_ep
-        train_s += ep_s
+        run.train_s += ep_s
         row = {"epoch": epoch + 1, **{k: v / steps_per_epoch for k, v in sums.items()},
                "lr": sched.get_last_lr()[0], "epoch_s": ep_s}
         if val_every and val_scenes and ((epoch + 1) % val_every == 0) and epoch + 1 < epochs:
-            dets = {s.scene_id: _detect_prepared(model, s, params, device) for s in val_scenes}
-            row["val_mAP"] = evaluate_scenes(dets, val_paths, params)["mAP_headline"]
-        history.append(row)
+            row["val_mAP"] = _validate(model, val_scenes, val_paths, params, device)["mAP_headline"]
+        run.history.append(row)
         log.info("epoch %d/%d: loss %.4f, %.1f s (%.2f s/step)%s", epoch + 1, epochs, row.get("loss", float("nan")),
                  ep_s, ep_s / steps_per_epoch, f", val mAP {row['val_mAP']:.3f}" if "val_mAP" in row else "")
-        atomic_write_text(out_dir / "loss.csv", _csv_text(history))
+        atomic_write_text(out_dir / "loss.csv", _csv_text(run.history))
         _save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "settings": settings, "params": params,
                "state_dict": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-               "epoch": epoch + 1, "history": history, "train_s": train_s, "steps": steps_done}, ckpt_path)
+               "epoch": epoch + 1, "history": run.history, "train_s": run.train_s, "steps": run.steps}, ckpt_path)
     if bar is not None:
         bar.close()
-
-    val = None
-    val_s = None
-    if val_scenes:
-        t0 = time.perf_counter()
-        dets = {s.scene_id: _detect_prepared(model, s, params, device) for s in val_scenes}
-        val_s = (time.perf_counter() - t0) / len(val_scenes)
-        m = evaluate_scenes(dets, val_paths, params)
-        val = {"mAP_headline": m["mAP_headline"], "mAP": m["mAP"],
-               "AP_headline": {c: m["per_class"][c]["AP"][repr(0.5)] for c in params["classes"]}}
-        if history:
-            history[-1]["val_mAP"] = m["mAP_headline"]
-            atomic_write_text(out_dir / "loss.csv", _csv_text(history))
-    summary = {
-        "schema_version": SCHEMA_VERSION,
-        "method": "sasa",
-        "device": str(device),
-        "torch_threads": torch.get_num_threads(),
-        "n_train_scenes": len(scenes),
-        "n_val_scenes": len(val_scenes),
-        "train_scenes": train_ids,
-        "epochs": epochs,
-        "batch_size": bs,
-        "steps": steps_done,
-        "train_time_s": train_s,
-        "s_per_step": train_s / max(steps_done, 1),
-        "prepare_time_s": prep_s,
-        "kept_points_per_scene": {"min": int(min(n_kept)), "median": float(np.median(n_kept)), "max": int(max(n_kept))},
-        "val_infer_s_per_scene": val_s,
-        "val": val,
-        "final_loss": history[-1] if history else None,
-        **peak_memory_mb(device),
-        "params": params,
-    }
+    val, val_s = _final_validation(model, val_scenes, val_paths, params, device, run, out_dir)
+    summary = _training_summary(params, device, scenes, val_scenes, train_ids, run, prep_s, val_s, val)
     _save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "settings": settings, "params": params,
            "state_dict": model.state_dict(), "classes": list(params["classes"]), "summary": summary},
           out_dir / "model.pt")
