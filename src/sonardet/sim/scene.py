@@ -30,8 +30,9 @@ from ..objects import ObjectInfo
 from ..objects.catalog import canonical_box
 from .layout import plan_layout
 from .mbes import RaycastTarget, SensorConfig, Soundings, scan, survey_lines, swath_half_width_m
+from .effects import swath_margin_m
+from .effects.burial import bury_objects as bury_settled
 from .physics import RigidBody, settle
-from .realism import burial_depths, swath_margin_m
 from .rocks import make_rock
 from .seabed import make_seabed
 
@@ -266,12 +267,10 @@ def settle_spawns(scene_id: str, spawns, objects: dict[str, ObjectInfo], hf, phy
 
 
 def bury_objects(kept, spawns, burial_m, rng: np.random.Generator):
-    """Sink settled objects into the sediment by a depth drawn per group from burial_m [min, max] (m).
+    """Sink settled objects into the sediment by a depth drawn per arrangement group from burial_m
+    [min, max] (m): the burial effect (:mod:`sonardet.sim.effects.burial`) on the spawns' groups.
     Returns (kept with lowered t, depths (K,) or None when burial is off)."""
-    if not kept or max(burial_m) <= 0:
-        return kept, None
-    buried = burial_depths([spawns[k].group for k, _, _ in kept], burial_m, rng)
-    return [(k, np.asarray(t, dtype=np.float64) - [0.0, 0.0, d], q) for (k, t, q), d in zip(kept, buried)], buried
+    return bury_settled(kept, [spawns[k].group for k, _, _ in kept], burial_m, rng)
 
 
 def annotate_objects(kept, spawns, objects: dict[str, ObjectInfo], label: np.ndarray, min_points_visible: int,
