@@ -189,7 +189,7 @@ def test_a_registered_effect_adds_a_key_a_group_and_a_scan_step(lift):
     # In the scan it acts at its stage: every sounding 0.25 m higher, nothing else changes.
     flat = RaycastTarget([(np.array([[-60, -60, -11.5], [60, -60, -11.5], [60, 60, -11.5], [-60, 60, -11.5]]),
                            np.array([[0, 1, 2], [0, 2, 3]]))], [-2])
-    base = dict(n_beams=64, range_sigma_m=0.0, dropout_prob=0.0, grazing_dropout_prob=0.0)
+    base = {"n_beams": 64, "range_sigma_m": 0.0, "dropout_prob": 0.0, "grazing_dropout_prob": 0.0}
     plain = SensorConfig(**base)
     traj = straight_line([-1, 0], [1, 0], 0.0, plain, 11.5)
     a = scan(flat, traj, plain, np.random.default_rng(0))

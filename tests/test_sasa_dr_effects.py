@@ -16,8 +16,22 @@ from test_sasa_model import TINY, make_scene
 
 from sonardet.detect.sasa import data as dr
 from sonardet.detect.sasa import resolve_params
-from sonardet.detect.sasa.data import DR_STREAMS, _in_box_footprints, domain_randomise, dr_z_field, prepare_scene
-from sonardet.sim.effects import attitude, burial, line_offsets, noise, outliers, refraction, roughness
+from sonardet.detect.sasa.data import (
+    DR_STREAMS,
+    _in_box_footprints,
+    domain_randomise,
+    dr_z_field,
+    prepare_scene,
+)
+from sonardet.sim.effects import (
+    attitude,
+    burial,
+    line_offsets,
+    noise,
+    outliers,
+    refraction,
+    roughness,
+)
 
 
 @pytest.fixture(scope="module")
@@ -47,14 +61,15 @@ REUSED = {
 
 def test_every_reused_effect_model_is_on_the_dr_path(scene, monkeypatch):
     calls = dict.fromkeys(REUSED, 0)
+    def spy(name, f):
+        def counted(*a, **k):
+            calls[name] += 1
+            return f(*a, **k)
+        return counted
+
     for name, module in REUSED.items():
         assert getattr(dr, name) is getattr(module, name)  # the effect's own function, not a copy
-
-        def spy(*a, _f=getattr(module, name), _n=name, **k):
-            calls[_n] += 1
-            return _f(*a, **k)
-
-        monkeypatch.setattr(dr, name, spy)
+        monkeypatch.setattr(dr, name, spy(name, getattr(module, name)))
     p = resolve_params({**TINY, "dr_enabled": True, "dr_burial_prob": 1.0, "dr_outlier_frac": [0.02, 0.02],
                         "dr_tilt_deg": [0.3, 0.3], "dr_smile_coeff": [0.005, 0.005], "dr_heave_m": [0.03, 0.03],
                         "dr_line_offset_m": [0.03, 0.03], "dr_range_noise_m": [0.01, 0.01],

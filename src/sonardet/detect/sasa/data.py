@@ -562,7 +562,7 @@ class _DRState:
     cell: float
 
     @classmethod
-    def of(cls, scene: PreparedScene, params: dict) -> "_DRState":
+    def of(cls, scene: PreparedScene, params: dict) -> _DRState:
         cell = float(params["ground_cell_m"])
         ground, lo, hi, grid_lo, grid_shape = _ground_model(scene, cell)
         boxes = scene.boxes.astype(np.float64)

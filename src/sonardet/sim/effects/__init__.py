@@ -18,10 +18,22 @@ a child generator spawned from the scan's generator (:func:`child_rng`), so the 
 dropouts and range noise keep their realisation when effects are turned on or off; per-line
 quantities come from one fixed set of per-line draws (:func:`draw_lines`).
 
-Adding an effect: one module that builds an :class:`Effect` and calls :func:`register` (in this
-package, imported below, or in a plugin listed under the config's `plugins`).
+Adding an effect: one module that builds an :class:`Effect`; a plugin (listed under the config's
+`plugins`) calls :func:`register` with it, a built-in one is added to :data:`BUILTIN` below.
 """
 
+from . import (
+    attitude,
+    burial,
+    footprint,
+    line_offsets,
+    noise,
+    outer_dropouts,
+    outliers,
+    quantisation,
+    refraction,
+    roughness,
+)
 from .base import (
     SCENE_SECTION,
     SENSOR_SECTION,
@@ -35,6 +47,7 @@ from .base import (
     child_rng,
     draw_lines,
 )
+from .geometry import fan_directions, ping_times_s, swath_margin_m
 from .registry import (
     REALISM_EFFECT_GROUPS,
     EffectGroups,
@@ -50,16 +63,50 @@ from .registry import (
     unregister,
 )
 
-# The built-in effects register themselves at import, in this (config key) order.
-from . import footprint, quantisation, attitude, refraction, outliers, outer_dropouts  # noqa: E402,I001
-from . import line_offsets, roughness, burial, noise  # noqa: E402,I001
-from .geometry import fan_directions, ping_times_s, swath_margin_m  # noqa: E402
+#: The built-in effects in registry order: the order of RealismConfig's fields, of the schema's
+#: realism keys and of the realism ablation's groups (not the order in which they act: see pipeline).
+BUILTIN = (footprint.FOOTPRINT, quantisation.QUANTISATION, attitude.ATTITUDE, refraction.SURFACE_SOUND_SPEED,
+           refraction.SVP_BIAS, outliers.OUTLIERS, outer_dropouts.OUTER_DROPOUTS, line_offsets.LINE_OFFSETS,
+           roughness.ROUGHNESS, burial.BURIAL)
+for _effect in BUILTIN:
+    register(_effect)
 
 __all__ = [
-    "STAGES", "SCENE_SECTION", "SENSOR_SECTION", "Effect", "Key", "Reach", "LineDraws", "ScanSetup", "ScanChunk",
-    "child_rng", "draw_lines", "REALISM_EFFECT_GROUPS", "EffectGroups", "RealismConfig", "effect", "effect_groups",
-    "effects", "pipeline", "realism_schema", "register", "unregister", "sensor_effects", "sensor_keys",
-    "fan_directions", "ping_times_s", "swath_margin_m",
-    "footprint", "quantisation", "attitude", "refraction", "outliers", "outer_dropouts", "line_offsets", "roughness",
-    "burial", "noise",
+    "BUILTIN",
+    "REALISM_EFFECT_GROUPS",
+    "SCENE_SECTION",
+    "SENSOR_SECTION",
+    "STAGES",
+    "Effect",
+    "EffectGroups",
+    "Key",
+    "LineDraws",
+    "Reach",
+    "RealismConfig",
+    "ScanChunk",
+    "ScanSetup",
+    "attitude",
+    "burial",
+    "child_rng",
+    "draw_lines",
+    "effect",
+    "effect_groups",
+    "effects",
+    "fan_directions",
+    "footprint",
+    "line_offsets",
+    "noise",
+    "outer_dropouts",
+    "outliers",
+    "ping_times_s",
+    "pipeline",
+    "quantisation",
+    "realism_schema",
+    "refraction",
+    "register",
+    "roughness",
+    "sensor_effects",
+    "sensor_keys",
+    "swath_margin_m",
+    "unregister",
 ]

@@ -16,8 +16,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import HEAVE, PITCH, ROLL, YAW, Effect, Key, Reach, ScanSetup, finite, non_negative, positive
-from .registry import register
+from .base import (
+    HEAVE,
+    PITCH,
+    ROLL,
+    YAW,
+    Effect,
+    Key,
+    Reach,
+    ScanSetup,
+    finite,
+    non_negative,
+    positive,
+)
 
 
 def sinusoid(amplitude, period, t, phase):
@@ -79,7 +90,7 @@ def _number(lo, hi):
 
 _POSITIVE = {"$ref": "#/definitions/positive"}
 
-ATTITUDE = register(Effect(
+ATTITUDE = Effect(
     name="attitude", stage="ray", order=10, doc=__doc__, steers=True,
     keys=(
         Key("roll_bias_deg", 0.0, "deg", "uncompensated roll bias of every line (deg, + starboard down, which "
@@ -107,4 +118,4 @@ ATTITUDE = register(Effect(
     switches=("roll_bias_deg", "roll_bias_sigma_deg", "pitch_bias_deg", "pitch_bias_sigma_deg",
               "roll_amplitude_deg", "pitch_amplitude_deg", "yaw_amplitude_deg", "heave_amplitude_m"),
     check=_check, reach=_reach, setup=_setup,
-))
+)

@@ -23,8 +23,9 @@ Every stage but ``scene`` takes its keys from `sensor.realism` (:class:`RealismC
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -163,8 +164,8 @@ class Effect:
     steers: bool = False
     check: Callable[[Any], str | None] | None = None
     reach: Callable[..., Reach] | None = None
-    setup: Callable[[Any, "ScanSetup"], None] | None = None
-    apply: Callable[[Any, "ScanSetup", "ScanChunk", np.random.Generator], None] | None = None
+    setup: Callable[[Any, ScanSetup], None] | None = None
+    apply: Callable[[Any, ScanSetup, ScanChunk, np.random.Generator], None] | None = None
 
     def __post_init__(self):
         if not self.name or not self.name.replace("_", "").isalnum():

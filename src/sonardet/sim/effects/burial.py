@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Effect, Key, min_max_range
-from .registry import register
 
 
 def burial_depths(groups, burial_m, rng: np.random.Generator) -> np.ndarray:
@@ -50,11 +49,11 @@ def burial_dz(object_index: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
     return np.where(object_index >= 0, -np.asarray(depth_m, np.float64)[np.maximum(object_index, 0)], 0.0)
 
 
-BURIAL = register(Effect(
+BURIAL = Effect(
     name="burial", stage="scene", doc=__doc__,
     keys=(Key("burial_m", (0.0, 0.0), "m", "depth (m) by which settled objects sink into the sediment, uniform "
               "in [min, max]; one depth per pile, stack or cone cluster, one per scattered object; [0, 0] = off",
               {"type": "array", "items": {"$ref": "#/definitions/nonneg"}, "minItems": 2, "maxItems": 2},
               (min_max_range,), tuple),),
     is_on=lambda scene_realism: max(scene_realism.get("burial_m", (0.0, 0.0))) > 0,
-))
+)

@@ -14,8 +14,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Effect, Key, Reach, ScanSetup, angle_below_90, integer_at_least, one_of, positive
-from .registry import register
+from .base import (
+    Effect,
+    Key,
+    Reach,
+    ScanSetup,
+    angle_below_90,
+    integer_at_least,
+    one_of,
+    positive,
+)
 
 DETECTION_MODES = ("amplitude", "phase", "first", "auto")
 
@@ -92,7 +100,7 @@ def _reach(cfg, half_swath_rad: float, sound_speed_mps: float) -> Reach:
     return Reach(across_deg=0.5 * cfg.beamwidth_across_deg, along_deg=0.5 * cfg.beamwidth_along_deg)
 
 
-FOOTPRINT = register(Effect(
+FOOTPRINT = Effect(
     name="footprint", stage="sounding", order=30, doc=__doc__,
     keys=(
         Key("footprint_n_across", 1, "", "beam footprint: sub-rays across track per beam; with footprint_n_along, "
@@ -111,4 +119,4 @@ FOOTPRINT = register(Effect(
             "detection is used", {"type": "number", "minimum": 0, "exclusiveMaximum": 90}, (angle_below_90,)),
     ),
     is_on=lambda cfg: n_subrays(cfg) > 1, reach=_reach, setup=_setup,
-))
+)

@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 
 from .base import OFFSET, Effect, Key, ScanChunk, ScanSetup, non_negative
-from .registry import register
 
 
 def line_offsets_m(sigma_m: float, normal: np.ndarray) -> np.ndarray:
@@ -31,9 +30,9 @@ def _apply(cfg, setup: ScanSetup, chunk: ScanChunk, rng: np.random.Generator) ->
     chunk.add_dz(np.broadcast_to(dz[:, None], chunk.r.shape))
 
 
-LINE_OFFSETS = register(Effect(
+LINE_OFFSETS = Effect(
     name="line_offsets", stage="point", order=80, doc=__doc__,
     keys=(Key("line_offset_sigma_m", 0.0, "m", "std of a random vertical offset per survey line (m)",
               {"$ref": "#/definitions/nonneg"}, (non_negative,)),),
     switches=("line_offset_sigma_m",), setup=_setup, apply=_apply,
-))
+)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Effect, Key, ScanSetup, angle_below_90, probability
-from .registry import register
 
 
 def outer_dropout_probability(prob: float, start_deg: float, angles_rad: np.ndarray,
@@ -26,7 +25,7 @@ def _setup(cfg, setup: ScanSetup) -> None:
                                                             setup.angles_rad, setup.half_swath_rad))
 
 
-OUTER_DROPOUTS = register(Effect(
+OUTER_DROPOUTS = Effect(
     name="outer_dropouts", stage="sounding", order=50, doc=__doc__,
     keys=(
         Key("outer_dropout_prob", 0.0, "", "extra dropout probability reached at the swath edge, rising "
@@ -36,4 +35,4 @@ OUTER_DROPOUTS = register(Effect(
             {"type": "number", "minimum": 0, "exclusiveMaximum": 90}, (angle_below_90,)),
     ),
     switches=("outer_dropout_prob",), setup=_setup,
-))
+)

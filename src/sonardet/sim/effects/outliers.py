@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Effect, Key, ScanChunk, ScanSetup, non_negative, probability
-from .registry import register
 
 
 def angle_weight(angles_rad: np.ndarray, half_swath_rad: float, power: float) -> np.ndarray:
@@ -63,7 +62,7 @@ def _apply(cfg, setup: ScanSetup, chunk: ScanChunk, rng: np.random.Generator) ->
     chunk.r = np.maximum(chunk.r + offsets, 0.0)
 
 
-OUTLIERS = register(Effect(
+OUTLIERS = Effect(
     name="outliers", stage="sounding", order=60, doc=__doc__,
     keys=(
         Key("outlier_prob", 0.0, "", "share of soundings that are spikes (mean over the swath's beams)",
@@ -74,4 +73,4 @@ OUTLIERS = register(Effect(
             "(0 = uniform)", {"$ref": "#/definitions/nonneg"}, (non_negative,)),
     ),
     switches=("outlier_prob",), setup=_setup, apply=_apply,
-))
+)

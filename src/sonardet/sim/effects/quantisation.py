@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Effect, Key, ScanChunk, ScanSetup, non_negative
-from .registry import register
 
 
 def quantise(r: np.ndarray, step_m: float) -> np.ndarray:
@@ -20,9 +19,9 @@ def _apply(cfg, setup: ScanSetup, chunk: ScanChunk, rng: np.random.Generator) ->
     chunk.r = quantise(chunk.r, cfg.range_quantum_m)
 
 
-QUANTISATION = register(Effect(
+QUANTISATION = Effect(
     name="quantisation", stage="sounding", order=70, doc=__doc__,
     keys=(Key("range_quantum_m", 0.0, "m", "reported ranges are rounded to multiples of this step (m; R2Sonic "
               "2026: 0.0029); 0 = off", {"$ref": "#/definitions/nonneg"}, (non_negative,)),),
     switches=("range_quantum_m",), apply=_apply,
-))
+)

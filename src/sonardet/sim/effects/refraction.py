@@ -19,7 +19,6 @@ from __future__ import annotations
 import numpy as np
 
 from .base import SVP, Effect, Key, Reach, ScanChunk, ScanSetup, finite, non_negative
-from .registry import register
 
 
 def steered_angles(angles_rad: np.ndarray, error_mps: float, sound_speed_mps: float) -> np.ndarray:
@@ -65,16 +64,16 @@ def _apply_svp(cfg, setup: ScanSetup, chunk: ScanChunk, rng: np.random.Generator
     chunk.add_dz(svp_bias_dz(k[chunk.line_row][:, None], chunk.r * cos_v, cos_v))
 
 
-SURFACE_SOUND_SPEED = register(Effect(
+SURFACE_SOUND_SPEED = Effect(
     name="surface_sound_speed", stage="ray", order=20, group="refraction", steers=True,
     doc="Surface sound-speed error: Snell steering error of a flat array (see the module docstring).",
     keys=(Key("surface_sound_speed_error_mps", 0.0, "m/s", "sound speed the array assumes for beam steering "
               "minus the true one (m/s); Snell steering error, + gives a smile (outer beams up)",
               {"type": "number", "minimum": -100, "maximum": 100}, (finite,)),),
     switches=("surface_sound_speed_error_mps",), reach=_reach_surface, setup=_setup_surface,
-))
+)
 
-SVP_BIAS = register(Effect(
+SVP_BIAS = Effect(
     name="svp_bias", stage="point", order=90, group="refraction",
     doc="Water-column sound-speed bias k D (1/cos a - 1) (see the module docstring).",
     keys=(
@@ -85,4 +84,4 @@ SVP_BIAS = register(Effect(
             {"type": "number", "minimum": 0, "maximum": 0.1}, (non_negative,)),
     ),
     switches=("svp_bias_coeff", "svp_bias_sigma"), setup=_setup_svp, apply=_apply_svp,
-))
+)

@@ -151,7 +151,7 @@ class RealismConfig:
                 raise ValueError(problems[0])
 
     @classmethod
-    def from_config(cls, d: dict | None) -> "RealismConfig":
+    def from_config(cls, d: dict | None) -> RealismConfig:
         """Build from the `sensor.realism` mapping; None or {} give the all-off profile.
 
         Unknown keys raise ValueError naming them (the config schema rejects them too).

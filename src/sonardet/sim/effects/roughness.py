@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Effect, Key, ScanChunk, ScanSetup, non_negative
-from .registry import register
 
 #: Smallest |cos(incidence)| used to turn a normal displacement into a range change (about 78 deg),
 #: so grazing hits on a rough surface do not jump by metres.
@@ -42,10 +41,10 @@ def _apply(cfg, setup: ScanSetup, chunk: ScanChunk, rng: np.random.Generator) ->
                                                 cfg.object_roughness_sigma_m, rng)
 
 
-ROUGHNESS = register(Effect(
+ROUGHNESS = Effect(
     name="roughness", stage="range", order=40, doc=__doc__,
     keys=(Key("object_roughness_sigma_m", 0.0, "m", "roughness / biofouling: std of a random normal displacement "
               "of object surfaces (mesh id >= 0) per sub-ray hit (m)", {"$ref": "#/definitions/nonneg"},
               (non_negative,)),),
     switches=("object_roughness_sigma_m",), apply=_apply,
-))
+)
