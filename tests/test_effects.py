@@ -111,6 +111,8 @@ def test_combination_check_and_scene_key_messages():
     assert burial.section == "scenes.realism"
     assert burial.problems({"burial_m": [0.3, 0.1]}) == [
         "scenes.realism.burial_m must be [min, max] with 0 <= min <= max, got [0.3, 0.1]"]
+    with pytest.raises(ValueError, match=r"^scenes\.realism\.burial_m "):
+        burial.validate({"burial_m": [-0.1, 0.1]})
     assert burial.on({"burial_m": [0.0, 0.1]}) and not burial.on({"burial_m": [0.0, 0.0]})
 
 

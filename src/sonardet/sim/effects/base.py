@@ -193,6 +193,12 @@ class Effect:
             return bool(self.is_on(cfg))
         return any(get(k) != 0 for k in self.switches)
 
+    def validate(self, cfg) -> None:
+        """Raise ValueError with the first of :meth:`problems` (a message naming `<section>.<key>`)."""
+        problems = self.problems(cfg)
+        if problems:
+            raise ValueError(problems[0])
+
     def problems(self, cfg) -> list[str]:
         """Messages naming `<section>.<key>` for every invalid key of `cfg`, then the combination check."""
         get = cfg.get if isinstance(cfg, dict) else (lambda k: getattr(cfg, k))

@@ -146,9 +146,7 @@ class RealismConfig:
 
     def __post_init__(self):
         for e in sensor_effects():
-            problems = e.problems(self)
-            if problems:
-                raise ValueError(problems[0])
+            e.validate(self)
 
     @classmethod
     def from_config(cls, d: dict | None) -> RealismConfig:
