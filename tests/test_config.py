@@ -124,7 +124,8 @@ def test_realism_effects_default_to_the_groups_realism_test_sets():
     burial = realism_effect_config(cfg, "burial")
     assert "realism" not in burial["sensor"] and burial["scenes"]["realism"]["burial_m"] == [0.0, 0.1]
     # Every key of the sensor's realism profile belongs to exactly one group.
-    schema = yaml.safe_load((REPO / "src/sonardet/data/schema.yaml").read_text())
-    keys = set(schema["properties"]["sensor"]["properties"]["realism"]["properties"])
+    from sonardet.config import read_schema
+
+    keys = set(read_schema()["properties"]["sensor"]["properties"]["realism"]["properties"])
     grouped = [k for v in REALISM_EFFECT_GROUPS.values() for k in v if k != "burial_m"]
     assert sorted(grouped) == sorted(keys)

@@ -12,7 +12,9 @@ from sonardet.seeds import config_hash
 from sonardet.objects import build_object
 from sonardet.objects import object_info
 from sonardet.sim.mbes import RaycastTarget, SensorConfig, Trajectory, beam_angles, scan, straight_line
-from sonardet.sim.realism import RealismConfig, burial_depths, subray_bundle
+from sonardet.sim.effects import RealismConfig
+from sonardet.sim.effects.burial import burial_depths
+from sonardet.sim.effects.footprint import subray_bundle
 from sonardet.sim.scene import simulate_scene
 
 NOISELESS = dict(range_sigma_m=0.0, dropout_prob=0.0, grazing_dropout_prob=0.0)

@@ -107,8 +107,9 @@ def test_plugin_errors_name_the_entry(tmp_path):
 def test_class_specs_give_schema_and_defaults():
     assert classes.names()[:4] == ["reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s"]
     schema = read_schema()["properties"]
-    assert schema["objects"]["properties"]["tetrapod_b"]["default"] == {"height_m": 2.08, "mass_kg": 6000,
-                                                                        "taper": 0.6}
+    assert {k: v["default"] for k, v in schema["objects"]["properties"]["tetrapod_b"]["properties"].items()} == {
+        "height_m": 2.08, "mass_kg": 6000, "taper": 0.6}
+    assert validate_config({})["objects"]["tetrapod_b"] == {"height_m": 2.08, "mass_kg": 6000, "taper": 0.6}
     assert schema["scenes"]["properties"]["pile_layers"]["default"] == {"reef_ring": 2, "tetrapod_s": 3}
     cfg = validate_config({"objects": {"tetrapod_s": {"height_m": 1.5}}})
     assert cfg["objects"]["tetrapod_s"] == {"height_m": 1.5, "mass_kg": 2000, "taper": 0.6}
@@ -133,6 +134,14 @@ def test_packing_check_uses_the_footprints():
     with pytest.raises(ConfigError, match=r"scenes\.n_objects: up to 300 objects need about") as e:
         validate_config({"scenes": {"n_objects": [250, 300]}})
     assert str(e.value).count("scenes.n_objects") == 1  # each message once
+
+
+def test_a_plugin_class_leaves_other_configs_alone():
+    """Registering a class (a plugin imported earlier in the process) must not change the objects
+    section, and so the config hash, of a config that does not use it."""
+    before = validate_config({})
+    load_plugins([CUBE])
+    assert validate_config({}) == before and "concrete_cube" not in before["objects"]
 
 
 def test_fifth_class_by_one_spec(tmp_path):

@@ -16,6 +16,7 @@ from pathlib import Path
 import jsonschema
 import yaml
 
+from ..objects import classes
 from ..plugins import PluginError, load_plugins
 from .checks import cross_checks
 from .realism import REALISM_EFFECT_GROUPS, realism_effect_config, realism_effects, realism_test_config
@@ -103,14 +104,13 @@ def validate_config(config: dict, source: str = "config") -> dict:
 
 
 def _complete(cfg: dict) -> None:
-    """Defaults that depend on other keys: the class mix of classes the config adds (their spec's
-    weight)."""
-    from ..objects import classes
-
+    """Defaults that depend on other keys: the parameters (objects.{cls}) and the class mix of the
+    configured classes, from their specs."""
     mix = cfg["scenes"]["class_mix"]
     for c in cfg["classes"]:
-        if c not in mix and c in classes.names():
-            mix[c] = classes.get(c).mix_weight
+        if c in classes.names():
+            cfg["objects"][c] = {**classes.get(c).defaults(), **cfg["objects"].get(c, {})}
+            mix.setdefault(c, classes.get(c).mix_weight)
 
 
 def _realism_test_problems(cfg: dict) -> list[str]:

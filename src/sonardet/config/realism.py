@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import copy
 
+from ..sim.effects import REALISM_EFFECT_GROUPS
+
 __all__ = ["REALISM_EFFECT_GROUPS", "realism_effect_config", "realism_effects", "realism_test_config"]
 
 
@@ -16,24 +18,6 @@ def realism_test_config(cfg: dict) -> dict:
     out["sensor"]["realism"] = copy.deepcopy(cfg["realism_test"]["sensor"])
     out["scenes"]["realism"] = {"burial_m": list(cfg["realism_test"]["burial_m"])}
     return out
-
-
-#: The standard effect groups of the realism ablation: effect -> keys of `realism_test.sensor` (or
-#: `burial_m`) that together make one physical effect.
-REALISM_EFFECT_GROUPS = {
-    "footprint": ["footprint_n_across", "footprint_n_along", "beamwidth_across_deg", "beamwidth_along_deg",
-                  "detection", "detection_switch_deg"],
-    "quantisation": ["range_quantum_m"],
-    "attitude": ["roll_bias_deg", "roll_bias_sigma_deg", "pitch_bias_deg", "pitch_bias_sigma_deg",
-                 "roll_amplitude_deg", "roll_period_s", "pitch_amplitude_deg", "pitch_period_s",
-                 "yaw_amplitude_deg", "yaw_period_s", "heave_amplitude_m", "heave_period_s", "motion_compensated"],
-    "refraction": ["surface_sound_speed_error_mps", "svp_bias_coeff", "svp_bias_sigma"],
-    "outliers": ["outlier_prob", "outlier_magnitude_m", "outlier_outer_power"],
-    "outer_dropouts": ["outer_dropout_prob", "outer_dropout_start_deg"],
-    "line_offsets": ["line_offset_sigma_m"],
-    "roughness": ["object_roughness_sigma_m"],
-    "burial": ["burial_m"],
-}
 
 
 def realism_effects(cfg: dict) -> dict[str, list[str]]:

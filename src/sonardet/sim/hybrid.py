@@ -42,7 +42,7 @@ from ..geometry import quat_to_matrix
 from ..objects import ObjectInfo
 from .layout import plan_layout
 from .mbes import RaycastTarget
-from .scene import Scene, annotate_objects, bury_objects, class_counts, settle_spawns
+from .scene import Scene, annotate_objects, bury_objects, class_counts, class_geometry, settle_spawns
 from .seabed import Heightfield
 
 log = logging.getLogger(__name__)
@@ -255,29 +255,7 @@ def simulate_hybrid_scene(scene_id: str, config: dict, objects: dict[str, Object
     timings["grid_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    # The layout draws per class in the config's order, whatever the order of `objects`.
-    classes = [c for c in config["classes"] if c in objects] + [c for c in objects if c not in config["classes"]]
-    area = float((hi[0] - lo[0]) * (hi[1] - lo[1]))
-    counts_cfg = dict(sc)
-    scale = area / float(sc["extent_m"][0] * sc["extent_m"][1])
-    counts_cfg["n_objects"] = [int(round(n * scale)) for n in sc["n_objects"]]
-    counts = class_counts(counts_cfg, classes, rngs["layout"]) if classes else {}
-    verts = {c: np.asarray(o.mesh.vertices) for c, o in objects.items()}
-    radius = {c: float(np.max(np.hypot(v[:, 0], v[:, 1]))) for c, v in verts.items()}
-    height = {c: float(o.extents_m[2]) for c, o in objects.items()}
-    spawns, unplaced = plan_layout(counts, radius, height, verts, (lo[0], hi[0], lo[1], hi[1]), sc,
-                                   lambda x, y: float(hf.height_at(x, y)), rngs["layout"])
-
-    def clearance(x, y):
-        i = int(np.clip(np.floor((x - hf.x0) / hf.cell_m + 0.5), 0, hf.nx - 1))
-        j = int(np.clip(np.floor((y - hf.y0) / hf.cell_m + 0.5), 0, hf.ny - 1))
-        return float(inside[j, i])
-
-    # Scattered spawns (group -1) stand alone; a group (pile, stack, cluster) stays or goes as a whole.
-    key = [s.group if s.group >= 0 else -1 - k for k, s in enumerate(spawns)]
-    bad = {g for g, s in zip(key, spawns) if clearance(s.t[0], s.t[1]) < radius[s.cls] + hy["edge_margin_m"]}
-    outside = sum(g in bad for g in key)
-    spawns = [s for g, s in zip(key, spawns) if g not in bad]
+    spawns, unplaced, outside = _hybrid_layout(config, objects, hf, inside, lo, hi, rngs["layout"])
     timings["layout_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -295,8 +273,51 @@ def simulate_hybrid_scene(scene_id: str, config: dict, objects: dict[str, Object
     timings["implant_s"] = time.perf_counter() - t0
 
     objs = annotate_objects(kept, spawns, objects, label, sc["min_points_visible"], buried)
+    annotations = {"objects": objs, "removed": removed, "unplaced": unplaced, "rocks": [], "physics": phys}
+    meta = _hybrid_meta(scene_id, config, seed, extent, survey, xyz, label, covered, outside, annotations, timings)
+    line = np.zeros(len(xyz), np.int32)
+    return Scene(xyz, survey.ping.astype(np.int32), survey.beam.astype(np.int32), line, label, meta)
+
+
+def _hybrid_layout(config: dict, objects: dict[str, ObjectInfo], hf, inside: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray, rng: np.random.Generator):
+    """The spawns of a hybrid scene: object counts scaled from `scenes.n_objects` (per extent_m area)
+    to the survey's area lo..hi (m), the layout on the seabed grid hf, then every group (pile, stack,
+    cluster; a scattered object alone) dropped whose spawn is closer to uncovered seabed than its
+    radius plus `hybrid_test.edge_margin_m` (inside: distance (m) of each grid cell to uncovered
+    seabed). Returns (spawns, unplaced messages, number of objects dropped)."""
+    sc, hy = config["scenes"], config["hybrid_test"]
+    # The layout draws per class in the config's order, whatever the order of `objects`.
+    classes = [c for c in config["classes"] if c in objects] + [c for c in objects if c not in config["classes"]]
+    area = float((hi[0] - lo[0]) * (hi[1] - lo[1]))
+    counts_cfg = dict(sc)
+    scale = area / float(sc["extent_m"][0] * sc["extent_m"][1])
+    counts_cfg["n_objects"] = [int(round(n * scale)) for n in sc["n_objects"]]
+    counts = class_counts(counts_cfg, classes, rng) if classes else {}
+    verts, radius, height = class_geometry(objects)
+    spawns, unplaced = plan_layout(counts, radius, height, verts, (lo[0], hi[0], lo[1], hi[1]), sc,
+                                   lambda x, y: float(hf.height_at(x, y)), rng)
+
+    def clearance(x, y):
+        i = int(np.clip(np.floor((x - hf.x0) / hf.cell_m + 0.5), 0, hf.nx - 1))
+        j = int(np.clip(np.floor((y - hf.y0) / hf.cell_m + 0.5), 0, hf.ny - 1))
+        return float(inside[j, i])
+
+    # Scattered spawns (group -1) stand alone; a group (pile, stack, cluster) stays or goes as a whole.
+    key = [s.group if s.group >= 0 else -1 - k for k, s in enumerate(spawns)]
+    bad = {g for g, s in zip(key, spawns) if clearance(s.t[0], s.t[1]) < radius[s.cls] + hy["edge_margin_m"]}
+    outside = sum(g in bad for g in key)
+    spawns = [s for g, s in zip(key, spawns) if g not in bad]
+    return spawns, unplaced, outside
+
+
+def _hybrid_meta(scene_id: str, config: dict, seed: int, extent, survey: RealSurvey, xyz: np.ndarray,
+                 label: np.ndarray, covered: np.ndarray, outside: int, annotations: dict, timings: dict) -> dict:
+    """The hybrid scene's JSON metadata; annotations: its objects, removed, unplaced, rocks and
+    physics entries (in this order)."""
+    hy = config["hybrid_test"]
     alt = survey.sensor[:, 2].mean() - float(np.median(survey.xyz[:, 2]))
-    meta = {
+    return {
         "schema_version": SCHEMA_VERSION,
         "scene": scene_id,
         "seed": int(seed),
@@ -310,14 +331,8 @@ def simulate_hybrid_scene(scene_id: str, config: dict, objects: dict[str, Object
             "sensor_fit_rms_m": float(np.median(survey.fit_rms_m)),
             "dropped_outside_coverage": int(outside),
         },
-        "objects": objs,
-        "removed": removed,
-        "unplaced": unplaced,
-        "rocks": [],
-        "physics": phys,
+        **annotations,
         "stats": {"n_points": int(len(xyz)), "n_rays": int(len(xyz)), "n_dropped": 0,
                   "points_per_m2": float(len(xyz) / max(float(covered.sum()) * hy["cell_m"] ** 2, 1e-9))},
         "timings_s": timings,
     }
-    line = np.zeros(len(xyz), np.int32)
-    return Scene(xyz, survey.ping.astype(np.int32), survey.beam.astype(np.int32), line, label, meta)

@@ -18,8 +18,18 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 import open3d as o3d
 
-from . import realism as rlz
-from .realism import RealismConfig
+from .effects import (
+    RealismConfig,
+    ScanChunk,
+    ScanSetup,
+    child_rng,
+    draw_lines,
+    fan_directions,
+    ping_times_s,
+    pipeline,
+)
+from .effects.footprint import combine_subrays
+from .effects.noise import range_noise
 
 #: Sentinel mesh id of a beam without a return (never appears in the output, documented for users).
 NO_HIT = -1
@@ -58,7 +68,7 @@ class SensorConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "SensorConfig":
         """Build from a config mapping, ignoring keys that are not sensor settings; a `realism`
-        mapping becomes a :class:`~sonardet.sim.realism.RealismConfig`."""
+        mapping becomes a :class:`~sonardet.sim.effects.RealismConfig`."""
         names = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in d.items() if k in names})
 
@@ -297,8 +307,8 @@ def scan(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rn
     of about slab_rays rays (whole pings; small enough for the CPU caches); slab_rays changes the
     speed only, never a byte.
 
-    With `sensor.realism` holding an effect that is on, the effects of
-    :mod:`sonardet.sim.realism` apply as well (then n_rays counts every sub-ray cast); otherwise
+    With `sensor.realism` holding an effect that is on, the sensor effects of
+    :mod:`sonardet.sim.effects` apply as well (then n_rays counts every sub-ray cast); otherwise
     the output is that of the plain ray cast, bytes included.
     """
     angles_all = beam_angles(sensor)
@@ -311,23 +321,92 @@ def scan(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rn
     if sensor.realism is not None and sensor.realism.active:
         return _scan_realistic(target, trajectory, sensor, rng, beam_idx, angles_all, ping_offset, chunk_rays,
                                nthreads)
-    cos_start = np.float32(np.cos(np.deg2rad(sensor.grazing_start_deg)))
-    grazing = sensor.grazing_dropout_prob > 0 and cos_start > 0
-    p_base, p_grazing = np.float32(sensor.dropout_prob), np.float32(sensor.grazing_dropout_prob)
-    sigma = np.float32(sensor.range_sigma_m)
-    pos, line16 = trajectory.position, trajectory.line.astype(np.int16)
-    sa, ca = np.sin(angles), np.cos(angles)
     per_chunk = max(1, chunk_rays // nb)
     per_slab = min(per_chunk, max(1, slab_rays // nb))
-    beam_grid = np.broadcast_to(beam_idx.astype(np.int16), (per_slab, nb)).ravel()
-    out = _SoundingBuffer(len(trajectory) * nb)
+    plain = _PlainScan(target, trajectory, sensor, rng, beam_idx, angles, ping_offset, per_slab, nthreads)
+    # One thread, slab after slab: Open3D's cast_rays holds the GIL (0.20), so a worker thread casting
+    # the next slab would not overlap the numpy work on this one (measured: no gain).
+    for c0 in range(0, len(trajectory), per_chunk):
+        plain.chunk(c0, min(c0 + per_chunk, len(trajectory)))
+    return plain.out.soundings()
 
-    def emit(s0, s1, stbd, t, mesh_id, p_drop, u_drop, noise):
+
+class _PlainScan:
+    """The plain ray cast of :func:`scan` (no realism effect on): its constants, output buffer and the
+    work per chunk of pings (random draws) and per slab (ray cast)."""
+
+    def __init__(self, target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig,
+                 rng: np.random.Generator, beam_idx: np.ndarray, angles: np.ndarray, ping_offset: int,
+                 per_slab: int, nthreads: int):
+        self.target, self.rng, self.nthreads, self.ping_offset = target, rng, nthreads, ping_offset
+        self.cos_start = np.float32(np.cos(np.deg2rad(sensor.grazing_start_deg)))
+        self.grazing = sensor.grazing_dropout_prob > 0 and self.cos_start > 0
+        self.p_base, self.p_grazing = np.float32(sensor.dropout_prob), np.float32(sensor.grazing_dropout_prob)
+        self.sigma = np.float32(sensor.range_sigma_m)
+        self.noisy = sensor.range_sigma_m > 0
+        self.pos, self.line16 = trajectory.position, trajectory.line.astype(np.int16)
+        self.heading = trajectory.heading_rad
+        self.sa, self.ca = np.sin(angles), np.cos(angles)
+        self.nb = len(angles)
+        self.per_slab = per_slab
+        self.beam_grid = np.broadcast_to(beam_idx.astype(np.int16), (per_slab, self.nb)).ravel()
+        self.out = _SoundingBuffer(len(trajectory) * self.nb)
+
+    def chunk(self, c0: int, c1: int) -> None:
+        """Cast, draw for and emit pings c0:c1 (one chunk: one set of random draws)."""
+        nb = self.nb
+        stbd = _starboard(self.heading[c0:c1])
+        same_heading = bool(np.all(stbd == stbd[0]))
+        # The chunk draws its dropout uniforms only if some beam has a dropout probability > 0; with
+        # grazing dropouts that is known once a slab shows one, else after the chunk's last slab.
+        draw_u = None if self.grazing else bool(self.p_base > 0)
+        drawn, u_drop, noise = False, None, None
+        waiting = []
+        for s0 in range(c0, c1, self.per_slab):
+            s1 = min(s0 + self.per_slab, c1)
+            n = s1 - s0
+            rays = _fan_rays(self.pos[s0:s1], stbd[s0 - c0:s1 - c0], self.sa, self.ca, same_heading)
+            t, mesh_id, normals = self.target.cast(rays, self.nthreads)
+            p_drop = self.p_base
+            if self.grazing:
+                p_drop = self._grazing_dropout(rays, normals, n, same_heading)
+                if draw_u is None and np.any(p_drop > 0):
+                    draw_u = True
+            waiting.append((s0, s1, t.reshape(n, nb), mesh_id.reshape(n, nb), p_drop))
+            if draw_u is None and s1 < c1:
+                continue
+            if not drawn:
+                if draw_u:
+                    u_drop = self.rng.random((c1 - c0, nb), dtype=np.float32)
+                if self.noisy:
+                    noise = self.rng.standard_normal((c1 - c0, nb), dtype=np.float32)
+                drawn = True
+            for w0, w1, t, mesh_id, p_drop in waiting:
+                rows = slice(w0 - c0, w1 - c0)
+                self.emit(w0, w1, stbd[rows], t, mesh_id, p_drop, None if u_drop is None else u_drop[rows],
+                          None if noise is None else noise[rows])
+            waiting.clear()
+
+    def _grazing_dropout(self, rays: np.ndarray, normals: np.ndarray, n: int, same_heading: bool) -> np.ndarray:
+        """Dropout probability (n, B) float32 of a slab's beams: random plus grazing-angle dropouts."""
+        # Incidence from the float32 directions of the rays: the same bytes as float32(stbd * sin)
+        # and -float32(cos); one row of them serves every ping of a same-heading chunk.
+        d = rays.reshape(n, self.nb, 6)[:1 if same_heading else n, :, 3:6]
+        nrm = normals.reshape(n, self.nb, 3)
+        c = d[..., 0] * nrm[..., 0]
+        c += d[..., 1] * nrm[..., 1]
+        c += d[..., 2] * nrm[..., 2]
+        np.abs(c, out=c)
+        u = np.clip((self.cos_start - c) / self.cos_start, 0.0, 1.0)
+        return self.p_base + self.p_grazing * u * u
+
+    def emit(self, s0, s1, stbd, t, mesh_id, p_drop, u_drop, noise) -> None:
         """Soundings of pings s0:s1 (stbd (n,2), t, mesh_id (n,B); u_drop, noise: their rows of the
         chunk's draws or None)."""
+        pos, sa, ca, out = self.pos, self.sa, self.ca, self.out
         hit = np.isfinite(t)
         keep = hit if u_drop is None else hit & (u_drop >= p_drop)
-        r = t if noise is None else t + sigma * noise
+        r = t if noise is None else t + self.sigma * noise
         idx = np.flatnonzero(keep)
         counts = keep.sum(1)
         xyz = out.xyz(len(idx))
@@ -338,55 +417,10 @@ def scan(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rn
             for k in range(2):
                 xyz[:, k] = (pos[s0:s1, k:k + 1] + stbd[:, k:k + 1] * sr).ravel().take(idx)
             xyz[:, 2] = (pos[s0:s1, 2:3] - ca * r).ravel().take(idx)
-        out.add(ping=np.repeat(np.arange(s0 + ping_offset, s1 + ping_offset, dtype=np.int32), counts),
-                beam=beam_grid.take(idx), line=np.repeat(line16[s0:s1], counts), mesh=mesh_id.ravel().take(idx),
-                n_rays=t.size, n_dropped=np.count_nonzero(hit) - len(idx))
-
-    # One thread, slab after slab: Open3D's cast_rays holds the GIL (0.20), so a worker thread casting
-    # the next slab would not overlap the numpy work on this one (measured: no gain).
-    for c0 in range(0, len(trajectory), per_chunk):
-        c1 = min(c0 + per_chunk, len(trajectory))
-        stbd = _starboard(trajectory.heading_rad[c0:c1])
-        same_heading = bool(np.all(stbd == stbd[0]))
-        # The chunk draws its dropout uniforms only if some beam has a dropout probability > 0; with
-        # grazing dropouts that is known once a slab shows one, else after the chunk's last slab.
-        draw_u = None if grazing else bool(p_base > 0)
-        drawn, u_drop, noise = False, None, None
-        waiting = []
-        for s0 in range(c0, c1, per_slab):
-            s1 = min(s0 + per_slab, c1)
-            n = s1 - s0
-            rays = _fan_rays(pos[s0:s1], stbd[s0 - c0:s1 - c0], sa, ca, same_heading)
-            t, mesh_id, normals = target.cast(rays, nthreads)
-            p_drop = p_base
-            if grazing:
-                # Incidence from the float32 directions of the rays: the same bytes as float32(stbd * sin)
-                # and -float32(cos); one row of them serves every ping of a same-heading chunk.
-                d = rays.reshape(n, nb, 6)[:1 if same_heading else n, :, 3:6]
-                nrm = normals.reshape(n, nb, 3)
-                c = d[..., 0] * nrm[..., 0]
-                c += d[..., 1] * nrm[..., 1]
-                c += d[..., 2] * nrm[..., 2]
-                np.abs(c, out=c)
-                u = np.clip((cos_start - c) / cos_start, 0.0, 1.0)
-                p_drop = p_base + p_grazing * u * u
-                if draw_u is None and np.any(p_drop > 0):
-                    draw_u = True
-            waiting.append((s0, s1, t.reshape(n, nb), mesh_id.reshape(n, nb), p_drop))
-            if draw_u is None and s1 < c1:
-                continue
-            if not drawn:
-                if draw_u:
-                    u_drop = rng.random((c1 - c0, nb), dtype=np.float32)
-                if sensor.range_sigma_m > 0:
-                    noise = rng.standard_normal((c1 - c0, nb), dtype=np.float32)
-                drawn = True
-            for w0, w1, t, mesh_id, p_drop in waiting:
-                rows = slice(w0 - c0, w1 - c0)
-                emit(w0, w1, stbd[rows], t, mesh_id, p_drop, None if u_drop is None else u_drop[rows],
-                     None if noise is None else noise[rows])
-            waiting.clear()
-    return out.soundings()
+        po = self.ping_offset
+        out.add(ping=np.repeat(np.arange(s0 + po, s1 + po, dtype=np.int32), counts),
+                beam=self.beam_grid.take(idx), line=np.repeat(self.line16[s0:s1], counts),
+                mesh=mesh_id.ravel().take(idx), n_rays=t.size, n_dropped=np.count_nonzero(hit) - len(idx))
 
 
 class _SoundingBuffer:
@@ -422,101 +456,127 @@ class _SoundingBuffer:
 def _scan_realistic(target: RaycastTarget, trajectory: Trajectory, sensor: SensorConfig, rng: np.random.Generator,
                     beam_idx: np.ndarray, angles_all: np.ndarray, ping_offset: int, chunk_rays: int,
                     nthreads: int) -> Soundings:
-    """:func:`scan` with the realism profile `sensor.realism`; the models and their order are those
-    of :mod:`sonardet.sim.realism`. The sensor's own dropouts and range noise draw from `rng` exactly
-    as the plain scan does; the realism effects draw from a spawned child of it."""
+    """:func:`scan` with the realism profile `sensor.realism`: the registered sensor effects set the
+    scan up (:func:`_realism_setup`), then act on each chunk of pings stage by stage (ray, range,
+    sounding, point; :mod:`sonardet.sim.effects`). The sensor's own dropouts and range noise draw
+    from `rng` exactly as the plain scan does; the effects draw from a spawned child of it."""
     rz = sensor.realism
-    rrng = rlz.child_rng(rng)
-    angles = angles_all[beam_idx]
-    nb = len(angles)
-    half = np.deg2rad(0.5 * sensor.swath_deg)
-
-    # Per-ping attitude: true (rays) and as the georeferencing knows it.
-    lp = rlz.draw_line_params(rz, trajectory.line, rrng)
-    li = lp.index(trajectory.line)
-    t_s = rlz.ping_times_s(trajectory.position, trajectory.line, sensor.speed_mps)
-    roll_m, pitch_m, yaw_m, heave_m = rlz.motion(rz, t_s, lp.phase[li])
-    roll_true, pitch_true = lp.roll_bias[li] + roll_m, lp.pitch_bias[li] + pitch_m
-    moves = rz.motion_compensated and any(np.any(a != 0) for a in (roll_m, pitch_m, yaw_m, heave_m))
-    across_true = rlz.steered_angles(angles, rz, sensor.sound_speed_mps)
-
-    d_across, d_along, weight = rlz.subray_bundle(rz)
-    ns = len(weight)
-    if rz.detection == "auto":
-        phase_beam = np.abs(angles) > np.deg2rad(rz.detection_switch_deg)
-    else:
-        phase_beam = np.full(nb, rz.detection == "phase")
-    p_outer = rlz.outer_dropout_probability(rz, angles, half).astype(np.float32)
-    p_spike = rlz.outlier_probability(rz, angles, angles_all, half)
-    cos_start = np.float32(np.cos(np.deg2rad(sensor.grazing_start_deg)))
-    any_svp = np.any(lp.svp_k != 0)
-
+    rrng = child_rng(rng)
+    setup = _realism_setup(rz, trajectory, sensor, beam_idx, angles_all, rrng)
+    stages = {stage: [e for e in pipeline(stage) if e.apply is not None and e.on(rz)]
+              for stage in ("range", "sounding", "point")}
+    ns = len(setup.sub_weight)
+    nb = len(beam_idx)
     pings_per_chunk = max(1, chunk_rays // (nb * ns))
     parts = []
     for p0 in range(0, len(trajectory), pings_per_chunk):
         sl = slice(p0, p0 + pings_per_chunk)
-        pos = trajectory.position[sl]
-        heading = trajectory.heading_rad[sl]
-        lines = trajectory.line[sl]
-        npg = len(pos)
-        per_ping = (slice(None), None, None)
-        dirs = rlz.fan_directions((heading + yaw_m[sl])[per_ping], roll_true[sl][per_ping],
-                                  pitch_true[sl][per_ping], across_true[None, :, None] + d_across[None, None, :],
-                                  d_along[None, None, :])
-        rays = np.empty((npg, nb, ns, 6), dtype=np.float32)
-        rays[..., 0:3] = (pos + np.c_[np.zeros((npg, 2)), heave_m[sl]])[:, None, None, :]
-        rays[..., 3:6] = dirs
-        t, mesh_sub, normals = target.cast(rays.reshape(-1, 6), nthreads)
-        t = t.reshape(npg, nb, ns).astype(np.float64)
-        mesh_sub = mesh_sub.reshape(npg, nb, ns)
-        cos_inc = np.abs(np.einsum("pbsk,pbsk->pbs", dirs, normals.reshape(npg, nb, ns, 3)))
-        if rz.object_roughness_sigma_m > 0:
-            t = t + rlz.roughness_range_offsets(t, mesh_sub, cos_inc, rz.object_roughness_sigma_m, rrng)
-        r, pick, hit = rlz.combine_subrays(t, weight, phase_beam, first=rz.detection == "first")
-        mesh_id = np.take_along_axis(mesh_sub, pick[..., None], 2)[..., 0]
-
-        keep = hit.copy()
-        p_drop = np.full((npg, nb), np.float32(sensor.dropout_prob), dtype=np.float32)
-        if sensor.grazing_dropout_prob > 0 and cos_start > 0:
-            c = np.take_along_axis(cos_inc, pick[..., None], 2)[..., 0].astype(np.float32)
-            u = np.clip((cos_start - c) / cos_start, 0.0, 1.0)
-            p_drop += np.float32(sensor.grazing_dropout_prob) * u * u
-        p_drop += p_outer[None, :]
-        if np.any(p_drop > 0):
-            keep &= rng.random((npg, nb), dtype=np.float32) >= p_drop
-        if sensor.range_sigma_m > 0:
-            r = r + np.float32(sensor.range_sigma_m) * rng.standard_normal((npg, nb), dtype=np.float32)
-        if rz.outlier_prob > 0:
-            r = np.maximum(r + rlz.outlier_offsets((npg, nb), p_spike, rz.outlier_magnitude_m, rrng), 0.0)
-        r = rlz.quantise(r, rz.range_quantum_m)
-
-        # Georeferencing with the attitude the processing knows (nominal, or with the motion).
-        if moves:
-            geo_dir = rlz.fan_directions((heading + yaw_m[sl])[:, None], roll_m[sl][:, None], pitch_m[sl][:, None],
-                                         angles[None, :], 0.0)
-            geo_origin = pos + np.c_[np.zeros((npg, 2)), heave_m[sl]]
-        else:
-            stbd, sa, ca = _fan_geometry(Trajectory(pos, heading, lines), angles)
-            geo_dir = np.stack(np.broadcast_arrays(stbd[:, 0:1] * sa[None, :], stbd[:, 1:2] * sa[None, :],
-                                                   -ca[None, :]), axis=-1)
-            geo_origin = pos
-        with np.errstate(invalid="ignore"):
-            xyz = geo_origin[:, None, :] + r[..., None] * geo_dir
-            lj = li[sl]
-            dz = np.broadcast_to(lp.offset_m[lj][:, None], (npg, nb))
-            if any_svp:
-                cos_v = -geo_dir[..., 2]
-                dz = dz + rlz.svp_bias_dz(lp.svp_k[lj][:, None], r * cos_v, cos_v)
-            xyz[..., 2] += dz
+        chunk = ScanChunk(sl, trajectory.position[sl], trajectory.heading_rad[sl], setup.line_index[sl])
+        _cast_chunk(target, setup, chunk, nthreads)
+        for e in stages["range"]:
+            e.apply(rz, setup, chunk, rrng)
+        mesh_id, hit = _detect_chunk(sensor, setup, chunk, rng)
+        for e in stages["sounding"]:
+            e.apply(rz, setup, chunk, rrng)
+        xyz = _georeference_chunk(setup, chunk, stages["point"], rz, rrng)
+        keep, npg = chunk.keep, len(chunk.position)
         ping = np.broadcast_to(np.arange(p0 + ping_offset, p0 + ping_offset + npg, dtype=np.int32)[:, None],
                                (npg, nb))[keep]
         parts.append(Soundings(
             xyz=xyz[keep],
             ping=ping,
             beam=np.broadcast_to(beam_idx.astype(np.int16)[None, :], (npg, nb))[keep],
-            line=np.broadcast_to(lines.astype(np.int16)[:, None], (npg, nb))[keep],
+            line=np.broadcast_to(trajectory.line[sl].astype(np.int16)[:, None], (npg, nb))[keep],
             mesh=mesh_id[keep],
             n_rays=npg * nb * ns,
             n_dropped=int(hit.sum() - keep.sum()),
         ))
     return Soundings.concatenate(parts)
+
+
+def _realism_setup(rz: RealismConfig, trajectory: Trajectory, sensor: SensorConfig, beam_idx: np.ndarray,
+                   angles_all: np.ndarray, rrng: np.random.Generator) -> ScanSetup:
+    """The per-line draws (from rrng, always the same ones) and every sensor effect's setup, in
+    pipeline order: the true and known attitude per ping, beam steering, sub-ray bundle, detection,
+    extra dropout probabilities (:class:`~sonardet.sim.effects.ScanSetup`)."""
+    lines = draw_lines(trajectory.line, rrng)
+    setup = ScanSetup(angles_rad=angles_all[beam_idx], all_angles_rad=angles_all,
+                      half_swath_rad=np.deg2rad(0.5 * sensor.swath_deg), sound_speed_mps=sensor.sound_speed_mps,
+                      lines=lines, line_index=lines.index(trajectory.line),
+                      t_s=ping_times_s(trajectory.position, trajectory.line, sensor.speed_mps))
+    for stage in ("ray", "range", "sounding", "point"):
+        for e in pipeline(stage):
+            if e.setup is not None:
+                e.setup(rz, setup)
+    return setup
+
+
+def _cast_chunk(target: RaycastTarget, setup: ScanSetup, chunk: ScanChunk, nthreads: int) -> None:
+    """Ray stage of one chunk: cast every sub-ray with the true attitude, heave and steering; sets
+    chunk.dirs, t (float64), mesh and cos_incidence."""
+    sl, pos, heading = chunk.pings, chunk.position, chunk.heading_rad
+    npg, nb, ns = len(pos), len(setup.angles_rad), len(setup.sub_weight)
+    per_ping = (slice(None), None, None)
+    dirs = fan_directions((heading + setup.yaw_rad[sl])[per_ping], setup.roll_rad[sl][per_ping],
+                          setup.pitch_rad[sl][per_ping],
+                          setup.across_rad[None, :, None] + setup.sub_across_rad[None, None, :],
+                          setup.sub_along_rad[None, None, :])
+    rays = np.empty((npg, nb, ns, 6), dtype=np.float32)
+    rays[..., 0:3] = (pos + np.c_[np.zeros((npg, 2)), setup.heave_m[sl]])[:, None, None, :]
+    rays[..., 3:6] = dirs
+    t, mesh_sub, normals = target.cast(rays.reshape(-1, 6), nthreads)
+    chunk.dirs = dirs
+    chunk.t = t.reshape(npg, nb, ns).astype(np.float64)
+    chunk.mesh = mesh_sub.reshape(npg, nb, ns)
+    chunk.cos_incidence = np.abs(np.einsum("pbsk,pbsk->pbs", dirs, normals.reshape(npg, nb, ns, 3)))
+
+
+def _detect_chunk(sensor: SensorConfig, setup: ScanSetup, chunk: ScanChunk, rng: np.random.Generator):
+    """Detection and the sensor's own dropouts and range noise of one chunk: combine the sub-rays
+    (footprint), drop beams (random, grazing and the effects' extra dropouts; one draw from `rng`),
+    add the range noise (from `rng`). Sets chunk.r and chunk.keep; returns (mesh id (n, B), hit
+    (n, B): detected before the dropouts)."""
+    r, pick, hit = combine_subrays(chunk.t, setup.sub_weight, setup.phase_beam, first=setup.first)
+    mesh_id = np.take_along_axis(chunk.mesh, pick[..., None], 2)[..., 0]
+    npg, nb = r.shape
+    keep = hit.copy()
+    p_drop = np.full((npg, nb), np.float32(sensor.dropout_prob), dtype=np.float32)
+    cos_start = np.float32(np.cos(np.deg2rad(sensor.grazing_start_deg)))
+    if sensor.grazing_dropout_prob > 0 and cos_start > 0:
+        c = np.take_along_axis(chunk.cos_incidence, pick[..., None], 2)[..., 0].astype(np.float32)
+        u = np.clip((cos_start - c) / cos_start, 0.0, 1.0)
+        p_drop += np.float32(sensor.grazing_dropout_prob) * u * u
+    if setup.extra_dropout_prob is not None:
+        p_drop += setup.extra_dropout_prob[None, :]
+    if np.any(p_drop > 0):
+        keep &= rng.random((npg, nb), dtype=np.float32) >= p_drop
+    if sensor.range_sigma_m > 0:
+        r = r + range_noise((npg, nb), sensor.range_sigma_m, rng)
+    chunk.r, chunk.keep = r, keep
+    return mesh_id, hit
+
+
+def _georeference_chunk(setup: ScanSetup, chunk: ScanChunk, point_effects, rz: RealismConfig,
+                        rrng: np.random.Generator) -> np.ndarray:
+    """Point stage of one chunk: soundings (n, B, 3) m placed with the attitude the processing knows
+    (nominal, or with the motion when it is compensated), then moved by the point-stage effects."""
+    sl, pos, heading = chunk.pings, chunk.position, chunk.heading_rad
+    angles = setup.angles_rad
+    if setup.georef_motion is not None:
+        roll, pitch, yaw, heave = setup.georef_motion
+        geo_dir = fan_directions((heading + yaw[sl])[:, None], roll[sl][:, None], pitch[sl][:, None],
+                                 angles[None, :], 0.0)
+        geo_origin = pos + np.c_[np.zeros((len(pos), 2)), heave[sl]]
+    else:
+        stbd, sa, ca = _starboard(heading), np.sin(angles), np.cos(angles)
+        geo_dir = np.stack(np.broadcast_arrays(stbd[:, 0:1] * sa[None, :], stbd[:, 1:2] * sa[None, :],
+                                               -ca[None, :]), axis=-1)
+        geo_origin = pos
+    chunk.geo_dir = geo_dir
+    with np.errstate(invalid="ignore"):
+        xyz = geo_origin[:, None, :] + chunk.r[..., None] * geo_dir
+        for e in point_effects:
+            e.apply(rz, setup, chunk, rrng)
+        if chunk.dz is not None:
+            xyz[..., 2] += chunk.dz
+    return xyz

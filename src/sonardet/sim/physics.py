@@ -219,7 +219,19 @@ def build_model(bodies: list[RigidBody], hf: Heightfield, *, dt_s: float = 0.004
     """
     spec = mujoco.MjSpec()
     spec.modelname = "sonardet_settle"
-    opt = spec.option
+    _set_options(spec.option, dt_s=dt_s, solver=solver, cone=cone, noslip_iterations=noslip_iterations,
+                 impratio=impratio, sleep=sleep, sleep_tolerance=sleep_tolerance)
+    _add_seabed(spec, hf, friction=friction, condim=seabed_condim, base_m=base_m,
+                solref_timeconst_s=solref_timeconst_s)
+    geom_names = _add_bodies(spec, bodies, friction=friction, rolling_resistance=rolling_resistance,
+                             rolling_max_m=rolling_max_m, solref_timeconst_s=solref_timeconst_s)
+    model = spec.compile()
+    return model, _model_info(model, bodies, geom_names, angular_damping_time_s)
+
+
+def _set_options(opt, *, dt_s: float, solver: str, cone: str, noslip_iterations: int, impratio: float,
+                 sleep: bool, sleep_tolerance: float) -> None:
+    """MuJoCo options of the settling model (see :func:`build_model` for the arguments)."""
     opt.timestep = float(dt_s)
     opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG,
@@ -238,7 +250,10 @@ def build_model(bodies: list[RigidBody], hf: Heightfield, *, dt_s: float = 0.004
         opt.sleep_tolerance = float(sleep_tolerance)
         opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 
-    # seabed
+
+def _add_seabed(spec, hf: Heightfield, *, friction: float, condim: int, base_m: float,
+                solref_timeconst_s: float) -> None:
+    """The seabed hfield geom whose nodes are exactly hf's (module docstring), base_m (m) of solid below."""
     z = hf.z
     zmin, zmax = float(z.min()), float(z.max())
     ez = max(zmax - zmin, 1e-6)
@@ -248,9 +263,14 @@ def build_model(bodies: list[RigidBody], hf: Heightfield, *, dt_s: float = 0.004
     hfield.userdata = ((z - zmin) / ez).astype(np.float32).ravel().tolist()
     spec.worldbody.add_geom(name="seabed", type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="seabed",
                             pos=[hf.x0 + rx, hf.y0 + ry, zmin],
-                            friction=[friction, 0.0, 0.0], condim=seabed_condim,
+                            friction=[friction, 0.0, 0.0], condim=condim,
                             solref=[float(solref_timeconst_s), 1.0])
 
+
+def _add_bodies(spec, bodies: list[RigidBody], *, friction: float, rolling_resistance: float,
+                rolling_max_m: float, solref_timeconst_s: float) -> list[list[str]]:
+    """One body b{i} per input body (a free joint unless static) with one mesh geom per convex part
+    (shared meshes for equal parts), density mass / hull volume; returns the geom names per body."""
     mesh_names: dict[bytes, str] = {}
     hull_vol: dict[str, float] = {}
     for b in bodies:
@@ -285,8 +305,12 @@ def build_model(bodies: list[RigidBody], hf: Heightfield, *, dt_s: float = 0.004
                           solref=[float(solref_timeconst_s), 1.0])
             names.append(gname)
         geom_names.append(names)
+    return geom_names
 
-    model = spec.compile()
+
+def _model_info(model: mujoco.MjModel, bodies: list[RigidBody], geom_names: list[list[str]],
+                angular_damping_time_s: float | None) -> dict:
+    """The ids and addresses :func:`build_model` returns; sets each free body's angular damping."""
     info = {"body_ids": [], "geom_ids": [], "qpos_adr": [], "qvel_adr": [],
             "hfield_geom": mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "seabed")}
     for bi, b in enumerate(bodies):
@@ -308,7 +332,7 @@ def build_model(bodies: list[RigidBody], hf: Heightfield, *, dt_s: float = 0.004
                 # friction it cannot hold a body in a false equilibrium
                 a = int(model.jnt_dofadr[jid])
                 model.dof_damping[a + 3:a + 6] = float(np.mean(model.body_inertia[bid])) / angular_damping_time_s
-    return model, info
+    return info
 
 
 def settle(bodies: list[RigidBody], heightfield: Heightfield, *, rng: np.random.Generator,
@@ -352,9 +376,41 @@ def settle(bodies: list[RigidBody], heightfield: Heightfield, *, rng: np.random.
     xmin, xmax, ymin, ymax = (float(v) for v in bounds_xy)
     if not (xmax > xmin and ymax > ymin):
         raise ValueError(f"bounds_xy must be (xmin, xmax, ymin, ymax) with max > min, got {bounds_xy}")
+    bounds = (xmin, xmax, ymin, ymax)
+    keep, removed = _reject_bad_starts(bodies, heightfield, bounds, below_terrain_m)
 
-    # ---- reject bad starts (before building, so they cannot disturb others); static bodies are
-    # never simulated and always kept
+    t_build = time.perf_counter()
+    phys_hf = _physics_heightfield(heightfield, bounds, hfield_margin_m, hfield_cell_m)
+    model, info = build_model(keep, phys_hf, dt_s=dt_s, friction=friction, sleep=sleep,
+                              sleep_tolerance=sleep_tolerance, solver=solver,
+                              **model_options)
+    data = mujoco.MjData(model)
+    build_time = time.perf_counter() - t_build
+
+    run = _Settling(model, data, info, keep, heightfield, bounds, dt_s=dt_s, settle_window_s=settle_window_s,
+                    lin_vel_tol=lin_vel_tol, ang_vel_tol=ang_vel_tol, below_terrain_m=below_terrain_m)
+    run.perturb(rng, perturb_ang_vel_rad_s)
+    init_pen = float(max(0.0, -data.contact.dist[:data.ncon].min())) if data.ncon else 0.0
+    t0 = time.perf_counter()
+    steps = run.run(int(np.ceil(max_time_s / dt_s)))
+    wall = time.perf_counter() - t0
+    all_at_rest = bool(np.all(run.rest[run.active]))
+    for k in np.flatnonzero(run.active & ~run.rest):
+        run.remove(int(k), REASON_NOT_SETTLED)
+    final_pen, touching = _final_contacts(model, data, info, keep, sleep)
+    result = run.result(names, removed)
+    return SettleResult(
+        **result, n_steps=steps, sim_time_s=float(data.time), wall_time_s=wall, build_time_s=build_time,
+        all_at_rest=all_at_rest, initial_penetration_m=init_pen, final_penetration_m=final_pen, touching=touching,
+    )
+
+
+def _reject_bad_starts(bodies: list[RigidBody], heightfield: Heightfield, bounds, below_terrain_m: float):
+    """Dynamic bodies spawned with their centre of mass outside bounds (xmin, xmax, ymin, ymax) or
+    more than below_terrain_m (m) below the seabed are removed before the model is built (so they
+    cannot disturb others); static bodies are never simulated and always kept. Returns (kept bodies,
+    removed [RemovedBody])."""
+    xmin, xmax, ymin, ymax = bounds
     removed: list[RemovedBody] = []
     keep = []
     for b in bodies:
@@ -367,93 +423,13 @@ def settle(bodies: list[RigidBody], heightfield: Heightfield, *, rng: np.random.
             removed.append(RemovedBody(b.name, REASON_BAD_START, 0.0, c))
             continue
         keep.append(b)
+    return keep, removed
 
-    t_build = time.perf_counter()
-    phys_hf = _physics_heightfield(heightfield, (xmin, xmax, ymin, ymax), hfield_margin_m, hfield_cell_m)
-    model, info = build_model(keep, phys_hf, dt_s=dt_s, friction=friction, sleep=sleep,
-                              sleep_tolerance=sleep_tolerance, solver=solver,
-                              **model_options)
-    data = mujoco.MjData(model)
-    build_time = time.perf_counter() - t_build
 
-    dyn = np.array([k for k, b in enumerate(keep) if not b.static], dtype=np.int64)
-    qvel_adr = np.array([info["qvel_adr"][k] for k in dyn], dtype=np.int64)
-    qpos_adr = np.array([info["qpos_adr"][k] for k in dyn], dtype=np.int64)
-    body_ids = np.array([info["body_ids"][k] for k in dyn], dtype=np.int64)
-
-    # small random spin (body frame) breaks exact balance; drawn in input order, deterministic
-    for a in qvel_adr:
-        w = rng.normal(size=3)
-        w *= perturb_ang_vel_rad_s / max(np.linalg.norm(w), 1e-12)
-        data.qvel[a + 3:a + 6] = w
-    mujoco.mj_forward(model, data)
-    init_pen = float(max(0.0, -data.contact.dist[:data.ncon].min())) if data.ncon else 0.0
-
-    n = dyn.size
-    active = np.ones(n, bool)           # not removed
-    rest = np.zeros(n, bool)            # rest criterion met at the current step
-    rest_since = np.full(n, np.nan)     # start of the current rest period (sim time, s)
-    lin_idx = qvel_adr[:, None] + np.arange(3)[None, :]
-    ang_idx = lin_idx + 3
-    pos_idx = qpos_adr[:, None] + np.arange(3)[None, :]
-    quat_idx = qpos_adr[:, None] + np.arange(3, 7)[None, :]
-    window = max(1, int(round(settle_window_s / dt_s)))
-    max_disp = lin_vel_tol * window * dt_s      # allowed net motion over the window (m)
-    max_turn = ang_vel_tol * window * dt_s      # allowed net rotation over the window (rad)
-    hist_pos = np.empty((window, n, 3))         # ring buffer of poses over the last window
-    hist_quat = np.empty((window, n, 4))
-    check_every = max(1, int(round(0.05 / dt_s)))  # bounds / sinking checks every ~50 ms
-    max_steps = int(np.ceil(max_time_s / dt_s))
-    removed_dyn = {}
-
-    def remove(k: int, reason: str):
-        active[k] = False
-        g = info["geom_ids"][dyn[k]]
-        model.geom_contype[g] = 0
-        model.geom_conaffinity[g] = 0
-        removed_dyn[k] = RemovedBody(keep[dyn[k]].name, reason, float(data.time),
-                                     data.xipos[body_ids[k]].copy())
-
-    t0 = time.perf_counter()
-    steps = 0
-    while steps < max_steps and n and active.any():
-        slot = steps % window
-        hist_pos[slot] = data.qpos[pos_idx]
-        hist_quat[slot] = data.qpos[quat_idx]
-        mujoco.mj_step(model, data)
-        steps += 1
-        if steps >= window:
-            old = (slot + 1) % window  # pose `window` steps before now
-            disp = np.linalg.norm(data.qpos[pos_idx] - hist_pos[old], axis=1)
-            dot = np.abs(np.einsum("ij,ij->i", data.qpos[quat_idx], hist_quat[old]))
-            turn = 2.0 * np.arccos(np.minimum(dot / np.linalg.norm(data.qpos[quat_idx], axis=1)
-                                              / np.linalg.norm(hist_quat[old], axis=1), 1.0))
-            v = data.qvel
-            lin = np.linalg.norm(v[lin_idx], axis=1)
-            ang = np.linalg.norm(v[ang_idx], axis=1)
-            now = ((disp < max_disp) & (turn < max_turn)
-                   & (lin < SPEED_FACTOR * lin_vel_tol) & (ang < SPEED_FACTOR * ang_vel_tol))
-            rest_since[now & ~rest] = data.time - window * dt_s
-            rest = now
-        if steps % check_every == 0:
-            com = data.xipos[body_ids]
-            h = heightfield.height_at(com[:, 0], com[:, 1])
-            out = ((com[:, 0] < xmin) | (com[:, 0] > xmax) | (com[:, 1] < ymin) | (com[:, 1] > ymax)
-                   | np.isnan(h))
-            for k in np.flatnonzero(out & active):
-                remove(int(k), REASON_OUT_OF_BOUNDS)
-            sunk = ~out & (com[:, 2] < h - below_terrain_m)
-            for k in np.flatnonzero(sunk & active):
-                remove(int(k), REASON_BELOW_TERRAIN)
-        if np.all(rest[active]):
-            break
-    wall = time.perf_counter() - t0
-
-    all_at_rest = bool(np.all(rest[active]))
-    for k in np.flatnonzero(active & ~rest):
-        remove(int(k), REASON_NOT_SETTLED)
-    # deepest remaining overlap among kept bodies and the seabed: sleeping islands skip their own
-    # contacts, so wake everything (clearing the sleep flag) and recompute the contacts once
+def _final_contacts(model: mujoco.MjModel, data: mujoco.MjData, info: dict, keep: list[RigidBody], sleep: bool):
+    """(deepest remaining overlap (m) among kept bodies and the seabed, sorted (name, name) pairs of
+    kept bodies in contact). Sleeping islands skip their own contacts, so everything is woken (the
+    sleep flag cleared) and the contacts recomputed once."""
     if sleep:
         model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
     mujoco.mj_forward(model, data)
@@ -466,44 +442,130 @@ def settle(bodies: list[RigidBody], heightfield: Heightfield, *, rng: np.random.
         a_, b_ = geom_owner[data.contact.geom1[c]], geom_owner[data.contact.geom2[c]]
         if a_ >= 0 and b_ >= 0 and a_ != b_:
             pairs.add((min(a_, b_), max(a_, b_)))
-    touching = sorted((keep[a_].name, keep[b_].name) for a_, b_ in pairs)
+    return final_pen, sorted((keep[a_].name, keep[b_].name) for a_, b_ in pairs)
 
-    # ---- assemble, input order
-    dyn_pos = {int(d): j for j, d in enumerate(dyn)}
-    out_names, out_pos, out_quat, out_t = [], [], [], []
-    removed_by_name = {r.name: r for r in removed}
-    for r in removed_dyn.values():
-        removed_by_name[r.name] = r
-    for kk, b in enumerate(keep):
-        if b.name in removed_by_name:
-            continue
-        out_names.append(b.name)
-        if b.static:
-            out_pos.append(b.pos.copy())
-            out_quat.append(b.quat.copy())
-            out_t.append(0.0)
-        else:
-            j = dyn_pos[kk]
-            qp = data.qpos[qpos_adr[j]:qpos_adr[j] + 7]
-            out_pos.append(qp[:3].copy())
-            out_quat.append(quat_normalize(qp[3:7].copy()))
-            out_t.append(float(rest_since[j]))
-    removed_list = [removed_by_name[nm] for nm in names if nm in removed_by_name]
-    return SettleResult(
-        names=out_names,
-        pos=np.array(out_pos, dtype=np.float64).reshape(-1, 3),
-        quat=np.array(out_quat, dtype=np.float64).reshape(-1, 4),
-        settle_time_s=np.array(out_t, dtype=np.float64),
-        removed=removed_list,
-        n_steps=steps,
-        sim_time_s=float(data.time),
-        wall_time_s=wall,
-        build_time_s=build_time,
-        all_at_rest=all_at_rest,
-        initial_penetration_m=init_pen,
-        final_penetration_m=final_pen,
-        touching=touching,
-    )
+
+class _Settling:
+    """The stepping of :func:`settle`: the dynamic bodies' state (active, at rest, rest start), the
+    rest criterion over a sliding window of poses, the bounds and sinking checks, removals."""
+
+    def __init__(self, model, data, info: dict, keep: list[RigidBody], heightfield: Heightfield, bounds, *,
+                 dt_s: float, settle_window_s: float, lin_vel_tol: float, ang_vel_tol: float,
+                 below_terrain_m: float):
+        self.model, self.data, self.info, self.keep, self.hf = model, data, info, keep, heightfield
+        self.bounds, self.dt_s, self.below_terrain_m = bounds, dt_s, below_terrain_m
+        self.lin_vel_tol, self.ang_vel_tol = lin_vel_tol, ang_vel_tol
+        self.dyn = dyn = np.array([k for k, b in enumerate(keep) if not b.static], dtype=np.int64)
+        self.qvel_adr = np.array([info["qvel_adr"][k] for k in dyn], dtype=np.int64)
+        self.qpos_adr = qpos_adr = np.array([info["qpos_adr"][k] for k in dyn], dtype=np.int64)
+        self.body_ids = np.array([info["body_ids"][k] for k in dyn], dtype=np.int64)
+        self.n = n = dyn.size
+        self.active = np.ones(n, bool)           # not removed
+        self.rest = np.zeros(n, bool)            # rest criterion met at the current step
+        self.rest_since = np.full(n, np.nan)     # start of the current rest period (sim time, s)
+        self.lin_idx = self.qvel_adr[:, None] + np.arange(3)[None, :]
+        self.ang_idx = self.lin_idx + 3
+        self.pos_idx = qpos_adr[:, None] + np.arange(3)[None, :]
+        self.quat_idx = qpos_adr[:, None] + np.arange(3, 7)[None, :]
+        self.window = window = max(1, int(round(settle_window_s / dt_s)))
+        self.max_disp = lin_vel_tol * window * dt_s      # allowed net motion over the window (m)
+        self.max_turn = ang_vel_tol * window * dt_s      # allowed net rotation over the window (rad)
+        self.hist_pos = np.empty((window, n, 3))         # ring buffer of poses over the last window
+        self.hist_quat = np.empty((window, n, 4))
+        self.check_every = max(1, int(round(0.05 / dt_s)))  # bounds / sinking checks every ~50 ms
+        self.removed_dyn = {}
+
+    def perturb(self, rng: np.random.Generator, ang_vel_rad_s: float) -> None:
+        """A small random spin (body frame, rad/s) per dynamic body, drawn in input order (it breaks
+        exact balance); then the forward pass of the start."""
+        for a in self.qvel_adr:
+            w = rng.normal(size=3)
+            w *= ang_vel_rad_s / max(np.linalg.norm(w), 1e-12)
+            self.data.qvel[a + 3:a + 6] = w
+        mujoco.mj_forward(self.model, self.data)
+
+    def remove(self, k: int, reason: str) -> None:
+        """Take dynamic body k out of play (it stops colliding at once) for `reason`."""
+        self.active[k] = False
+        g = self.info["geom_ids"][self.dyn[k]]
+        self.model.geom_contype[g] = 0
+        self.model.geom_conaffinity[g] = 0
+        self.removed_dyn[k] = RemovedBody(self.keep[self.dyn[k]].name, reason, float(self.data.time),
+                                          self.data.xipos[self.body_ids[k]].copy())
+
+    def run(self, max_steps: int) -> int:
+        """Step until every active body is at rest or max_steps; returns the steps taken."""
+        data, window = self.data, self.window
+        steps = 0
+        while steps < max_steps and self.n and self.active.any():
+            slot = steps % window
+            self.hist_pos[slot] = data.qpos[self.pos_idx]
+            self.hist_quat[slot] = data.qpos[self.quat_idx]
+            mujoco.mj_step(self.model, data)
+            steps += 1
+            if steps >= window:
+                self._update_rest((slot + 1) % window)  # the pose `window` steps before now
+            if steps % self.check_every == 0:
+                self._check_bounds()
+            if np.all(self.rest[self.active]):
+                break
+        return steps
+
+    def _update_rest(self, old: int) -> None:
+        """The rest criterion against the poses of ring-buffer slot `old` (module docstring)."""
+        data, dt_s, window = self.data, self.dt_s, self.window
+        disp = np.linalg.norm(data.qpos[self.pos_idx] - self.hist_pos[old], axis=1)
+        dot = np.abs(np.einsum("ij,ij->i", data.qpos[self.quat_idx], self.hist_quat[old]))
+        turn = 2.0 * np.arccos(np.minimum(dot / np.linalg.norm(data.qpos[self.quat_idx], axis=1)
+                                          / np.linalg.norm(self.hist_quat[old], axis=1), 1.0))
+        v = data.qvel
+        lin = np.linalg.norm(v[self.lin_idx], axis=1)
+        ang = np.linalg.norm(v[self.ang_idx], axis=1)
+        now = ((disp < self.max_disp) & (turn < self.max_turn)
+               & (lin < SPEED_FACTOR * self.lin_vel_tol) & (ang < SPEED_FACTOR * self.ang_vel_tol))
+        self.rest_since[now & ~self.rest] = data.time - window * dt_s
+        self.rest = now
+
+    def _check_bounds(self) -> None:
+        """Remove bodies whose centre of mass left the bounds or sank below the seabed."""
+        xmin, xmax, ymin, ymax = self.bounds
+        com = self.data.xipos[self.body_ids]
+        h = self.hf.height_at(com[:, 0], com[:, 1])
+        out = ((com[:, 0] < xmin) | (com[:, 0] > xmax) | (com[:, 1] < ymin) | (com[:, 1] > ymax)
+               | np.isnan(h))
+        for k in np.flatnonzero(out & self.active):
+            self.remove(int(k), REASON_OUT_OF_BOUNDS)
+        sunk = ~out & (com[:, 2] < h - self.below_terrain_m)
+        for k in np.flatnonzero(sunk & self.active):
+            self.remove(int(k), REASON_BELOW_TERRAIN)
+
+    def result(self, names: list[str], removed: list[RemovedBody]) -> dict:
+        """Kept bodies' names, poses and settle times in input order, and every removal in input
+        order (the SettleResult fields names, pos, quat, settle_time_s, removed)."""
+        data = self.data
+        dyn_pos = {int(d): j for j, d in enumerate(self.dyn)}
+        out_names, out_pos, out_quat, out_t = [], [], [], []
+        removed_by_name = {r.name: r for r in removed}
+        for r in self.removed_dyn.values():
+            removed_by_name[r.name] = r
+        for kk, b in enumerate(self.keep):
+            if b.name in removed_by_name:
+                continue
+            out_names.append(b.name)
+            if b.static:
+                out_pos.append(b.pos.copy())
+                out_quat.append(b.quat.copy())
+                out_t.append(0.0)
+            else:
+                j = dyn_pos[kk]
+                qp = data.qpos[self.qpos_adr[j]:self.qpos_adr[j] + 7]
+                out_pos.append(qp[:3].copy())
+                out_quat.append(quat_normalize(qp[3:7].copy()))
+                out_t.append(float(self.rest_since[j]))
+        return {"names": out_names, "pos": np.array(out_pos, dtype=np.float64).reshape(-1, 3),
+                "quat": np.array(out_quat, dtype=np.float64).reshape(-1, 4),
+                "settle_time_s": np.array(out_t, dtype=np.float64),
+                "removed": [removed_by_name[nm] for nm in names if nm in removed_by_name]}
 
 
 def place_above(convex_parts, quat, xy, heightfield: Heightfield, clearance_m: float = 0.05) -> np.ndarray:

@@ -28,8 +28,9 @@ from ..objects import ObjectInfo
 from ..objects.catalog import canonical_box
 from .layout import plan_layout
 from .mbes import RaycastTarget, SensorConfig, Soundings, scan, survey_lines, swath_half_width_m
+from .effects import swath_margin_m
+from .effects.burial import bury_objects as bury_settled
 from .physics import RigidBody, settle
-from .realism import burial_depths, swath_margin_m
 from .rocks import make_rock
 from .seabed import make_seabed
 
@@ -98,68 +99,20 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
         )
 
     t0 = time.perf_counter()
-    r = rngs["seabed"]
-    hf = make_seabed(
-        extent_m=(ex, ey), cell_m=sb["cell_m"], mean_depth_m=sb["mean_depth_m"],
-        slope_deg=r.uniform(*sb["slope_deg"]), slope_azimuth_deg=r.uniform(0, 360),
-        amplitude_m=r.uniform(*sb["amplitude_m"]), base_wavelength_m=sb["base_wavelength_m"],
-        octaves=sb["octaves"], persistence=sb["persistence"], roughness_m=sb["roughness_m"],
-        margin_m=sb["margin_m"], rng=r,
-    )
+    hf = _make_seabed(sb, (ex, ey), rngs["seabed"])
     timings["seabed_s"] = time.perf_counter() - t0
 
-    # Layout.
+    # Layout, then rocks: static clutter, partly buried, away from the objects' spawn footprints.
     t0 = time.perf_counter()
-    # The layout draws per class in the config's order, whatever the order of `objects`.
-    classes = [c for c in config["classes"] if c in objects] + [c for c in objects if c not in config["classes"]]
-    counts = class_counts(sc, classes, rngs["layout"]) if classes else {}
-    verts = {c: np.asarray(o.mesh.vertices) for c, o in objects.items()}
-    radius = {c: float(np.max(np.hypot(v[:, 0], v[:, 1]))) for c, v in verts.items()}
-    height = {c: float(o.extents_m[2]) for c, o in objects.items()}
-    spawns, unplaced = plan_layout(counts, radius, height, verts, extent, sc,
-                                   lambda x, y: float(hf.height_at(x, y)), rngs["layout"])
-    for msg in unplaced:
-        log.warning("%s: %s", scene_id, msg)
-
-    # Rocks: static clutter, partly buried, away from the objects' spawn footprints.
-    r = rngs["rocks"]
-    n_rocks = int(r.integers(sc["n_rocks"][0], sc["n_rocks"][1] + 1))
-    rocks, rock_meta = [], []
-    spawn_xy = np.array([s.t[:2] for s in spawns]) if spawns else np.zeros((0, 2))
-    spawn_r = np.array([radius[s.cls] for s in spawns])
-    for k in range(n_rocks):
-        size = float(np.exp(r.uniform(np.log(sc["rock_size_m"][0]), np.log(sc["rock_size_m"][1]))))
-        mesh = make_rock(size, r)
-        for _ in range(200):
-            x, y = r.uniform(0, ex), r.uniform(0, ey)
-            if len(spawn_xy) == 0 or np.all(np.hypot(*(spawn_xy - [x, y]).T) > spawn_r + 0.6 * size + 0.1):
-                break
-        else:
-            log.warning("%s: no free spot for rock %d (%.2f m); not placed", scene_id, k, size)
-            continue
-        bury = sc["rock_burial"] * mesh.extents[2]
-        z = float(hf.height_at(x, y)) - bury
-        rocks.append((mesh, np.array([x, y, z])))
-        rock_meta.append({"size_m": size, "pos": [x, y, z]})
+    spawns, unplaced, radius = layout_objects(scene_id, config, objects, sc, extent, hf, rngs["layout"])
+    rocks, rock_meta = _place_rocks(scene_id, sc, spawns, radius, hf, rngs["rocks"])
     timings["layout_s"] = time.perf_counter() - t0
 
-    # Physics.
+    # Physics, then burial: settled objects sink into the sediment (the physics knows no sediment).
     t0 = time.perf_counter()
-    rock_bodies = [RigidBody(f"rock{k}", [np.asarray(m.vertices)], 1.0, pos, static=True)
-                   for k, (m, pos) in enumerate(rocks)]
-    res, kept, removed, phys = settle_spawns(scene_id, spawns, objects, hf, sc["physics"], rngs["physics"],
-                                             extent, rock_bodies)
-    if res is not None:
-        gone_rocks = {int(rb.name[4:]) for rb in res.removed if rb.name.startswith("rock")}
-        for k in sorted(gone_rocks):
-            log.warning("%s: rock %d rejected by the physics (%s); not scanned", scene_id, k, "bad start")
-            rock_meta[k]["removed"] = True
-        rocks = [r for k, r in enumerate(rocks) if k not in gone_rocks]
-        timings["physics_step_s"] = res.wall_time_s
-        timings["physics_build_s"] = res.build_time_s
+    kept, removed, phys, rocks = _settle_scene(scene_id, spawns, objects, hf, sc, rngs["physics"], extent, rocks,
+                                               rock_meta, timings)
     timings["physics_s"] = time.perf_counter() - t0
-
-    # Burial: settled objects sink into the sediment (after the physics, which knows no sediment).
     burial_m = (sc.get("realism") or {}).get("burial_m", [0.0, 0.0])
     kept, buried = bury_objects(kept, spawns, burial_m, np.random.default_rng(derive_seed(seed, "burial")))
 
@@ -168,48 +121,10 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
     direction = str(rngs["survey"].choice(sv["directions"]))
     traj = survey_lines(extent, direction, sv["transducer_z_m"], altitude, sv["overlap"], sensor,
                         run_in_m=sv["run_in_m"])
+    posed = _posed_meshes(kept, spawns, objects)
     rocks = [m.copy().apply_translation(pos) for m, pos in rocks]
-    posed = []
-    for idx, (k, t, q) in enumerate(kept):
-        obj = objects[spawns[k].cls]
-        v = obj.mesh.vertices @ quat_to_matrix(q).T + t
-        posed.append((v, np.asarray(obj.mesh.faces), idx))
-    zmin = float(hf.z.min())
-    half = swath_half_width_m(sensor, sv["transducer_z_m"] - zmin)
-    cull_margin = 1.0 + swath_margin_m(sensor.realism, sv["transducer_z_m"] - zmin,
-                                       np.deg2rad(0.5 * sensor.swath_deg), sensor.sound_speed_mps)
     do_cull = sc["cull_to_swath"] if cull is None else cull
-    parts, n_tri = [], 0
-    lines = np.unique(traj.line)
-    full_target = None
-    for ln in lines:
-        sel = traj.line == ln
-        sub = type(traj)(traj.position[sel], traj.heading_rad[sel], traj.line[sel])
-        if do_cull:
-            rect = _swath_rect(traj, ln, half, cull_margin)
-            hfc = hf.crop(*rect)
-            meshes = [(hfc.vertices(), hfc.faces())]
-            ids = [SEABED_ID]
-            for v, f, idx in posed:
-                if _overlaps((v[:, :2].min(0), v[:, :2].max(0)), rect):
-                    meshes.append((v, f))
-                    ids.append(idx)
-            for m in rocks:
-                if _overlaps(m.bounds[:, :2], rect):
-                    meshes.append((m.vertices, m.faces))
-                    ids.append(ROCK_ID)
-            target = RaycastTarget(meshes, ids)
-        else:
-            if full_target is None:
-                meshes = [(hf.vertices(), hf.faces())] + [(v, f) for v, f, _ in posed] + \
-                         [(m.vertices, m.faces) for m in rocks]
-                ids = [SEABED_ID] + [idx for _, _, idx in posed] + [ROCK_ID] * len(rocks)
-                full_target = RaycastTarget(meshes, ids)
-            target = full_target
-        n_tri += target.n_triangles
-        first_ping = int(np.flatnonzero(sel)[0])
-        parts.append(scan(target, sub, sensor, rngs["sensor"], ping_offset=first_ping))
-    snd = Soundings.concatenate(parts)
+    snd, n_tri = _scan_survey(traj, hf, posed, rocks, sensor, sv["transducer_z_m"], do_cull, rngs["sensor"])
     inside = (snd.xyz[:, 0] >= 0) & (snd.xyz[:, 0] <= ex) & (snd.xyz[:, 1] >= 0) & (snd.xyz[:, 1] <= ey)
     timings["scan_s"] = time.perf_counter() - t0
     label = np.where(snd.mesh >= 0, snd.mesh, -1).astype(np.int32)[inside]
@@ -221,7 +136,7 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
         "seed": int(seed),
         "config_hash": config_hash({k: config[k] for k in ("seed", "classes", "objects", "sensor", "scenes")}),
         "extent": list(extent),
-        "survey": {"direction": direction, "n_lines": int(len(lines)), "n_pings": int(len(traj)),
+        "survey": {"direction": direction, "n_lines": int(len(np.unique(traj.line))), "n_pings": int(len(traj)),
                    "altitude_m": float(altitude)},
         "seabed": {"mean_depth_m": sb["mean_depth_m"], "cell_m": sb["cell_m"]},
         "objects": objs,
@@ -235,6 +150,142 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
         "timings_s": timings,
     }
     return Scene(snd.xyz[inside], snd.ping[inside], snd.beam[inside], snd.line[inside], label, meta)
+
+
+def _make_seabed(sb: dict, extent_m, rng: np.random.Generator):
+    """The scene's seabed heightfield from the `scenes.seabed` settings (slope, azimuth and amplitude
+    drawn from rng first, then the fBm)."""
+    return make_seabed(
+        extent_m=extent_m, cell_m=sb["cell_m"], mean_depth_m=sb["mean_depth_m"],
+        slope_deg=rng.uniform(*sb["slope_deg"]), slope_azimuth_deg=rng.uniform(0, 360),
+        amplitude_m=rng.uniform(*sb["amplitude_m"]), base_wavelength_m=sb["base_wavelength_m"],
+        octaves=sb["octaves"], persistence=sb["persistence"], roughness_m=sb["roughness_m"],
+        margin_m=sb["margin_m"], rng=rng,
+    )
+
+
+def class_geometry(objects: dict[str, ObjectInfo]):
+    """Per class: vertices (V, 3) of its mesh (canonical frame, m), horizontal radius (m) about its
+    vertical axis and height (m), as the layout needs them."""
+    verts = {c: np.asarray(o.mesh.vertices) for c, o in objects.items()}
+    radius = {c: float(np.max(np.hypot(v[:, 0], v[:, 1]))) for c, v in verts.items()}
+    height = {c: float(o.extents_m[2]) for c, o in objects.items()}
+    return verts, radius, height
+
+
+def layout_objects(scene_id: str, config: dict, objects: dict[str, ObjectInfo], sc: dict, extent, hf,
+                   rng: np.random.Generator):
+    """The planned spawns of one scene (counts per class drawn from `scenes`, then the layout) inside
+    extent (xmin, xmax, ymin, ymax) m on the seabed hf. Returns (spawns, unplaced messages, class
+    radius (m) by class); unplaced objects are logged."""
+    # The layout draws per class in the config's order, whatever the order of `objects`.
+    classes = [c for c in config["classes"] if c in objects] + [c for c in objects if c not in config["classes"]]
+    counts = class_counts(sc, classes, rng) if classes else {}
+    verts, radius, height = class_geometry(objects)
+    spawns, unplaced = plan_layout(counts, radius, height, verts, extent, sc,
+                                   lambda x, y: float(hf.height_at(x, y)), rng)
+    for msg in unplaced:
+        log.warning("%s: %s", scene_id, msg)
+    return spawns, unplaced, radius
+
+
+def _place_rocks(scene_id: str, sc: dict, spawns, radius: dict, hf, rng: np.random.Generator):
+    """Rocks (static clutter, partly buried) at random spots clear of the spawn footprints. Returns
+    (rocks [(trimesh in its frame, position (3,) m)], rock metadata [{size_m, pos}])."""
+    ex, ey = sc["extent_m"]
+    n_rocks = int(rng.integers(sc["n_rocks"][0], sc["n_rocks"][1] + 1))
+    rocks, rock_meta = [], []
+    spawn_xy = np.array([s.t[:2] for s in spawns]) if spawns else np.zeros((0, 2))
+    spawn_r = np.array([radius[s.cls] for s in spawns])
+    for k in range(n_rocks):
+        size = float(np.exp(rng.uniform(np.log(sc["rock_size_m"][0]), np.log(sc["rock_size_m"][1]))))
+        mesh = make_rock(size, rng)
+        for _ in range(200):
+            x, y = rng.uniform(0, ex), rng.uniform(0, ey)
+            if len(spawn_xy) == 0 or np.all(np.hypot(*(spawn_xy - [x, y]).T) > spawn_r + 0.6 * size + 0.1):
+                break
+        else:
+            log.warning("%s: no free spot for rock %d (%.2f m); not placed", scene_id, k, size)
+            continue
+        bury = sc["rock_burial"] * mesh.extents[2]
+        z = float(hf.height_at(x, y)) - bury
+        rocks.append((mesh, np.array([x, y, z])))
+        rock_meta.append({"size_m": size, "pos": [x, y, z]})
+    return rocks, rock_meta
+
+
+def _settle_scene(scene_id: str, spawns, objects, hf, sc: dict, rng: np.random.Generator, extent, rocks,
+                  rock_meta: list, timings: dict):
+    """Settle the spawns with the rocks as fixed obstacles (:func:`settle_spawns`); rocks the physics
+    rejects are logged, flagged removed in rock_meta and left out. Returns (kept, removed, physics
+    summary, remaining rocks); adds the physics timings to `timings`."""
+    rock_bodies = [RigidBody(f"rock{k}", [np.asarray(m.vertices)], 1.0, pos, static=True)
+                   for k, (m, pos) in enumerate(rocks)]
+    res, kept, removed, phys = settle_spawns(scene_id, spawns, objects, hf, sc["physics"], rng, extent, rock_bodies)
+    if res is not None:
+        gone_rocks = {int(rb.name[4:]) for rb in res.removed if rb.name.startswith("rock")}
+        for k in sorted(gone_rocks):
+            log.warning("%s: rock %d rejected by the physics (%s); not scanned", scene_id, k, "bad start")
+            rock_meta[k]["removed"] = True
+        rocks = [r for k, r in enumerate(rocks) if k not in gone_rocks]
+        timings["physics_step_s"] = res.wall_time_s
+        timings["physics_build_s"] = res.build_time_s
+    return kept, removed, phys, rocks
+
+
+def _posed_meshes(kept, spawns, objects: dict[str, ObjectInfo]):
+    """[(vertices (V, 3) in the scene frame, faces (F, 3), object index)] of the kept objects."""
+    posed = []
+    for idx, (k, t, q) in enumerate(kept):
+        obj = objects[spawns[k].cls]
+        v = obj.mesh.vertices @ quat_to_matrix(q).T + t
+        posed.append((v, np.asarray(obj.mesh.faces), idx))
+    return posed
+
+
+def _scan_survey(traj, hf, posed, rocks, sensor: SensorConfig, transducer_z_m: float, do_cull: bool,
+                 rng: np.random.Generator):
+    """Scan every survey line of traj against the seabed, the posed objects (mesh id = object index)
+    and the rocks; with do_cull each line only against the geometry inside its swath (plus the margin
+    the realism profile needs). Returns (soundings, triangles cast)."""
+    zmin = float(hf.z.min())
+    half = swath_half_width_m(sensor, transducer_z_m - zmin)
+    cull_margin = 1.0 + swath_margin_m(sensor.realism, transducer_z_m - zmin,
+                                       np.deg2rad(0.5 * sensor.swath_deg), sensor.sound_speed_mps)
+    parts, n_tri = [], 0
+    full_target = None
+    for ln in np.unique(traj.line):
+        sel = traj.line == ln
+        sub = type(traj)(traj.position[sel], traj.heading_rad[sel], traj.line[sel])
+        if do_cull:
+            target = _culled_target(hf, posed, rocks, _swath_rect(traj, ln, half, cull_margin))
+        else:
+            if full_target is None:
+                meshes = [(hf.vertices(), hf.faces())] + [(v, f) for v, f, _ in posed] + \
+                         [(m.vertices, m.faces) for m in rocks]
+                ids = [SEABED_ID] + [idx for _, _, idx in posed] + [ROCK_ID] * len(rocks)
+                full_target = RaycastTarget(meshes, ids)
+            target = full_target
+        n_tri += target.n_triangles
+        first_ping = int(np.flatnonzero(sel)[0])
+        parts.append(scan(target, sub, sensor, rng, ping_offset=first_ping))
+    return Soundings.concatenate(parts), n_tri
+
+
+def _culled_target(hf, posed, rocks, rect) -> RaycastTarget:
+    """The seabed cropped to rect (xmin, xmax, ymin, ymax) m and the objects and rocks overlapping it."""
+    hfc = hf.crop(*rect)
+    meshes = [(hfc.vertices(), hfc.faces())]
+    ids = [SEABED_ID]
+    for v, f, idx in posed:
+        if _overlaps((v[:, :2].min(0), v[:, :2].max(0)), rect):
+            meshes.append((v, f))
+            ids.append(idx)
+    for m in rocks:
+        if _overlaps(m.bounds[:, :2], rect):
+            meshes.append((m.vertices, m.faces))
+            ids.append(ROCK_ID)
+    return RaycastTarget(meshes, ids)
 
 
 def settle_spawns(scene_id: str, spawns, objects: dict[str, ObjectInfo], hf, physics: dict,
@@ -264,12 +315,10 @@ def settle_spawns(scene_id: str, spawns, objects: dict[str, ObjectInfo], hf, phy
 
 
 def bury_objects(kept, spawns, burial_m, rng: np.random.Generator):
-    """Sink settled objects into the sediment by a depth drawn per group from burial_m [min, max] (m).
+    """Sink settled objects into the sediment by a depth drawn per arrangement group from burial_m
+    [min, max] (m): the burial effect (:mod:`sonardet.sim.effects.burial`) on the spawns' groups.
     Returns (kept with lowered t, depths (K,) or None when burial is off)."""
-    if not kept or max(burial_m) <= 0:
-        return kept, None
-    buried = burial_depths([spawns[k].group for k, _, _ in kept], burial_m, rng)
-    return [(k, np.asarray(t, dtype=np.float64) - [0.0, 0.0, d], q) for (k, t, q), d in zip(kept, buried)], buried
+    return bury_settled(kept, [spawns[k].group for k, _, _ in kept], burial_m, rng)
 
 
 def annotate_objects(kept, spawns, objects: dict[str, ObjectInfo], label: np.ndarray, min_points_visible: int,

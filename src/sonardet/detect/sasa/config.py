@@ -79,6 +79,10 @@ elements 0.75-2.1 m tall and 2-2.7 m wide (reef_ring 2.7 x 2.7 x 0.75-0.9 m, ree
   footprint (+0.2 m); a smooth z distortion and a line offset move the boxes with the points at their
   centre; a sunk object's box sinks with it. Draws come from a generator derived from (``seed``,
   epoch, step), one child stream per effect, so training stays deterministic and resumable.
+  Where the simulator has the effect, the model is the simulator's own, in its point-stage form
+  (``sonardet.sim.effects``: burial, spikes, tilt and heave of the attitude, the SVP smile, line
+  offsets, the sensor's float32 range noise, roughness); seabed leaks, dropout blobs and the density
+  field have no sensor-model counterpart and live in ``data.py``.
   Ranges (physical reasoning, not fitted to any test set):
 
   - ``dr_range_noise_m`` [0, 0.03]: extra per-point vertical noise, sigma drawn per scene, added to

@@ -31,6 +31,13 @@ import torch
 from scipy import ndimage
 
 from ...io.annotations import read_scene
+from ...sim.effects.attitude import heave_dz, roll_bias_dz, sinusoid
+from ...sim.effects.burial import burial_depths, burial_dz
+from ...sim.effects.line_offsets import line_offset_dz, line_offsets_m
+from ...sim.effects.noise import range_noise_dz
+from ...sim.effects.outliers import draw_spikes
+from ...sim.effects.refraction import flat_seabed_cos, svp_bias_dz
+from ...sim.effects.roughness import roughness_point_offsets
 from ...io.scenes import read_scene_points
 
 log = logging.getLogger(__name__)
@@ -435,16 +442,21 @@ def weighted_sample(weight: np.ndarray, n: int, rng: np.random.Generator) -> np.
 
 def dr_z_field(xy: np.ndarray, draws: dict) -> np.ndarray:
     """The smooth vertical distortion (m, (n,)) at xy (n, 2) (local frame) of a scene's draws: planar
-    tilt + smile across the virtual track + residual heave along it."""
+    tilt + smile across the virtual track + residual heave along it, with the sensor effects' point-stage
+    models: a roll bias's :func:`~sonardet.sim.effects.attitude.roll_bias_dz` (distance along the
+    tilt azimuth x tan(tilt)), the SVP bias :func:`~sonardet.sim.effects.refraction.svp_bias_dz`
+    k D (1/cos a - 1) of a flat seabed D below a virtual track (a from the across-track distance,
+    clipped to the swath edge), and the uncompensated heave
+    :func:`~sonardet.sim.effects.attitude.heave_dz` of a sinusoid along the track."""
     p = np.asarray(xy, np.float64) - draws["centre"]
     az, tr = draws["tilt_azimuth_rad"], draws["track_rad"]
-    tilt = math.tan(draws["tilt_rad"]) * (p[:, 0] * math.cos(az) + p[:, 1] * math.sin(az))
+    tilt = roll_bias_dz(p[:, 0] * math.cos(az) + p[:, 1] * math.sin(az), draws["tilt_rad"])
     along = p[:, 0] * math.cos(tr) + p[:, 1] * math.sin(tr)
     across = -p[:, 0] * math.sin(tr) + p[:, 1] * math.cos(tr) - draws["track_offset_m"]
     D = draws["smile_depth_m"]
     u = np.clip(across, -D * math.tan(math.radians(DR_HALF_SWATH_DEG)), D * math.tan(math.radians(DR_HALF_SWATH_DEG)))
-    smile = draws["smile_k"] * D * (np.sqrt(1.0 + (u / D) ** 2) - 1.0)
-    heave = draws["heave_m"] * np.sin(2 * math.pi * along / draws["heave_wavelength_m"] + draws["heave_phase_rad"])
+    smile = svp_bias_dz(draws["smile_k"], D, flat_seabed_cos(D, u))
+    heave = heave_dz(sinusoid(draws["heave_m"], draws["heave_wavelength_m"], along, draws["heave_phase_rad"]))
     return tilt + smile + heave
 
 
@@ -477,13 +489,15 @@ def _line_coordinate(xy: np.ndarray, draws: dict) -> np.ndarray:
 def domain_randomise(scene: PreparedScene, params: dict, rng: np.random.Generator) -> DomainRandomised:
     """Randomised sensor effects on one prepared (ground-filtered) scene, then the ``n_points`` sample.
 
-    The effects, in order (ranges: the ``dr_*`` parameters; reasoning: config.py's docstring):
+    The effects, in order (ranges: the ``dr_*`` parameters; reasoning: config.py's docstring). Where
+    the simulator has the effect, its model comes from :mod:`sonardet.sim.effects` (named below):
 
     1. burial: objects resting on the seabed sink by U(``dr_burial_m``) with ``dr_burial_prob`` (an
        object stacked on a sunk one goes down with it); points now below the ground-filter height
-       vanish; boxes and axes move down;
-    2. spikes: ~``dr_outlier_frac`` x kept points at uniform positions of the footprint, at a height
-       U(``dr_outlier_height_m``) above the ground estimate, label -1;
+       vanish; boxes and axes move down (burial: ``burial_depths``, ``burial_dz``);
+    2. spikes: each of n candidate soundings (n = the scene's kept points) at uniform positions of
+       the footprint is an upward flier with probability U(``dr_outlier_frac``), at a height
+       U(``dr_outlier_height_m``) above the ground estimate, label -1 (outliers: ``draw_spikes``);
     3. seabed leaks: U{``dr_leak_patches``} random cells of the ground grid are lowered by
        U(``dr_leak_depth_m``) (a deep flier sets the cell minimum); the bilinear ground estimate dips
        as the cell's hat (half-width ``ground_cell_m``), the height of every point there rises, and
@@ -496,86 +510,145 @@ def domain_randomise(scene: PreparedScene, params: dict, rng: np.random.Generato
        smooth field); the boxes move with the field at their centre;
     6. line offsets: strips of width U(``dr_line_spacing_m``) along the virtual track, each shifted by
        N(0, sigma^2), sigma ~ U(``dr_line_offset_m``); in the overlap band a point takes either line;
-       z += offset, height += offset - the lower of the two lines there; boxes take their strip's;
-    7. range noise: z and height += N(0, sigma^2), sigma ~ U(``dr_range_noise_m``);
-    8. roughness: object points (label >= 0) move by N(0, sigma^2) per axis, sigma ~ U(``dr_roughness_m``).
+       z += offset, height += offset - the lower of the two lines there; boxes take their strip's
+       (line_offsets: ``line_offsets_m``, ``line_offset_dz``);
+    7. range noise: z and height += N(0, sigma^2), sigma ~ U(``dr_range_noise_m``) (the sensor's
+       range noise: ``noise.range_noise_dz``);
+    8. roughness: object points (label >= 0) move by N(0, sigma^2) per axis, sigma ~ U(``dr_roughness_m``)
+       (roughness: ``roughness_point_offsets``).
 
     Generated points never fall inside a gt box footprint grown by ``DR_BOX_MARGIN_M``. All random
     numbers come from ``rng`` (one draw per scene, then one child stream per effect).
     """
-    n_points = int(params["n_points"])
     base = int(rng.integers(0, 2**63 - 1))
     g = {name: np.random.default_rng([base, i]) for i, name in enumerate(DR_STREAMS)}
-    thr = float(params["ground_height_m"])
-    use_filter = bool(params["ground_filter"])
-    cell = float(params["ground_cell_m"])
-    ground, lo, hi, grid_lo, grid_shape = _ground_model(scene, cell)
-    centre = 0.5 * (lo + hi)
-    xyz = scene.xyz.astype(np.float64)
-    h = scene.height.astype(np.float64)
-    label = scene.label.astype(np.int64)
-    boxes = scene.boxes.astype(np.float64)
-    axis = (boxes[:, :3].copy() if scene.axis is None else np.asarray(scene.axis, np.float64).copy())
-    K = len(boxes)
-    draws: dict = {"centre": centre}
+    st = _DRState.of(scene, params)
+    _dr_burial(st, scene, params, g["burial"])
+    q, hq = _dr_spikes(st, scene, params, g["outliers"])
+    out_xyz = np.c_[q, st.ground(q) + hq] if len(q) else np.zeros((0, 3))
+    out_h, leak_xyz, leak_h = _dr_leaks(st, scene, params, g["leak"], q, hq)
+    st.pool((out_xyz, out_h), (leak_xyz, leak_h))
+    weight = _dr_weights(st, params, g["density"], g["dropout"])
+    idx = weighted_sample(weight, int(params["n_points"]), g["sample"])
+    st.xyz, st.h, st.label, st.src = st.xyz[idx], st.h[idx], st.label[idx], st.src[idx]
+    _dr_z_field(st, params, g["zfield"])
+    _dr_lines(st, params, g["lines"])
+    _dr_noise(st, params, g["noise"])
+    _dr_roughness(st, params, g["roughness"])
+    return DomainRandomised(st.xyz.astype(np.float32), st.h.astype(np.float32), st.label,
+                            st.boxes.astype(np.float32), st.axis.astype(np.float32), st.src, st.draws)
 
-    # 1. burial
-    r = g["burial"]
-    u, depth = r.random(K), r.uniform(float(params["dr_burial_m"][0]), float(params["dr_burial_m"][1]), K)
+
+@dataclass
+class _DRState:
+    """The working copy of one scene under domain randomisation (local frame, float64): points xyz
+    (n, 3), height h (n,), label (n,), src (n,) (see :class:`DomainRandomised`), boxes (K, 7), axis
+    (K, 3), the draws so far, and the scene's ground model (:func:`_ground_model`) and filter."""
+
+    xyz: np.ndarray
+    h: np.ndarray
+    label: np.ndarray
+    src: np.ndarray
+    boxes: np.ndarray
+    axis: np.ndarray
+    draws: dict
+    ground: object
+    lo: np.ndarray
+    hi: np.ndarray
+    grid_lo: np.ndarray
+    grid_shape: tuple
+    thr: float
+    use_filter: bool
+    cell: float
+
+    @classmethod
+    def of(cls, scene: PreparedScene, params: dict) -> _DRState:
+        cell = float(params["ground_cell_m"])
+        ground, lo, hi, grid_lo, grid_shape = _ground_model(scene, cell)
+        boxes = scene.boxes.astype(np.float64)
+        axis = (boxes[:, :3].copy() if scene.axis is None else np.asarray(scene.axis, np.float64).copy())
+        return cls(scene.xyz.astype(np.float64), scene.height.astype(np.float64), scene.label.astype(np.int64),
+                   np.arange(len(scene.xyz)), boxes, axis, {"centre": 0.5 * (lo + hi)}, ground, lo, hi, grid_lo,
+                   grid_shape, float(params["ground_height_m"]), bool(params["ground_filter"]), cell)
+
+    def pool(self, spikes, leaks) -> None:
+        """Append the spikes (xyz, height) and leaked seabed points (xyz, height) to the points."""
+        (out_xyz, out_h), (leak_xyz, leak_h) = spikes, leaks
+        self.xyz = np.concatenate([self.xyz, out_xyz, leak_xyz])
+        self.h = np.concatenate([self.h, out_h, leak_h])
+        self.label = np.concatenate([self.label, np.full(len(out_xyz) + len(leak_xyz), -1, np.int64)])
+        self.src = np.concatenate([self.src, np.full(len(out_xyz), -2), np.full(len(leak_xyz), -1)]).astype(np.int64)
+
+
+def _dr_burial(st: _DRState, scene: PreparedScene, params: dict, r: np.random.Generator) -> None:
+    """1. Sink resting objects (and what is stacked on them); drop their points below the filter."""
+    K = len(st.boxes)
+    u = r.random(K)
+    # Each object draws its own depth (no arrangement groups here: stacking is found below).
+    depth = burial_depths(np.full(K, -1), params["dr_burial_m"], r)
     sink = np.zeros(K)
+    boxes = st.boxes
     if K:
         bottom = boxes[:, 2] - 0.5 * boxes[:, 5]
-        resting = bottom - ground(boxes[:, :2]) <= DR_REST_TOL_M
+        resting = bottom - st.ground(boxes[:, :2]) <= DR_REST_TOL_M
         sink = np.where((u < float(params["dr_burial_prob"])) & resting, depth, 0.0)
         # an element stacked on a sunk one (footprints overlapping, bottom higher) goes down with it
         reach = 0.5 * np.maximum(boxes[:, 3], boxes[:, 4])
         on_top = ((np.hypot(*(boxes[:, None, :2] - boxes[None, :, :2]).transpose(2, 0, 1)) < reach[:, None] + reach)
                   & (bottom[:, None] > bottom[None, :] + DR_REST_TOL_M) & ~resting[:, None])
         sink = np.maximum(sink, np.max(np.where(on_top, sink[None, :], 0.0), axis=1))
-    keep = np.ones(len(xyz), bool)
+    keep = np.ones(len(st.xyz), bool)
     if np.any(sink > 0):
-        oi = _object_index(label, scene.obj_id)
-        dz = np.where(oi >= 0, sink[np.maximum(oi, 0)], 0.0)
-        xyz[:, 2] -= dz
-        h -= dz
-        keep = ~((dz > 0) & ((h <= thr) if use_filter else (h < 0.0)))
+        dz = burial_dz(_object_index(st.label, scene.obj_id), sink)
+        st.xyz[:, 2] += dz
+        st.h += dz
+        keep = ~((dz < 0) & ((st.h <= st.thr) if st.use_filter else (st.h < 0.0)))
         if not keep.any():  # a scene made of one sunk object: keep its points rather than none
             keep[:] = True
-        boxes[:, 2] -= sink
-        axis[:, 2] -= sink
-    draws["burial_m"] = sink
-    src = np.flatnonzero(keep)
-    xyz, h, label = xyz[keep], h[keep], label[keep]
+        st.boxes[:, 2] -= sink
+        st.axis[:, 2] -= sink
+    st.draws["burial_m"] = sink
+    st.xyz, st.h, st.label, st.src = st.xyz[keep], st.h[keep], st.label[keep], st.src[keep]
 
-    # 2. spikes
-    r = g["outliers"]
+
+def _dr_spikes(st: _DRState, scene: PreparedScene, params: dict, r: np.random.Generator):
+    """2. Upward fliers above the ground estimate; returns (xy (m, 2), height above ground (m,))."""
     frac = _draw(r, params["dr_outlier_frac"])
-    n_out = int(r.binomial(len(scene.xyz), frac))
-    q = r.uniform(lo, hi, (n_out, 2))
-    hq = r.uniform(float(params["dr_outlier_height_m"][0]), float(params["dr_outlier_height_m"][1]), n_out)
-    ok = ~_in_box_footprints(q, boxes, DR_BOX_MARGIN_M)
+    lo_m, hi_m = float(params["dr_outlier_height_m"][0]), float(params["dr_outlier_height_m"][1])
+    n = len(scene.xyz)
+    q = r.uniform(st.lo, st.hi, (n, 2))
+    # Downward spikes end below the ground estimate, where the filter removes them (their other
+    # effect, a dip of the estimate, is the leak below): only upward ones.
+    spike, hq = draw_spikes(n, frac, hi_m, r, low_fraction=lo_m / hi_m if hi_m > 0 else 0.0, p_negative=0.0)
+    q, hq = q[spike], hq[spike]
+    ok = ~_in_box_footprints(q, st.boxes, DR_BOX_MARGIN_M)
     q, hq = q[ok], hq[ok]
-    out_xyz = np.c_[q, ground(q) + hq] if len(q) else np.zeros((0, 3))
-    draws.update(outlier_frac=frac, n_outliers=len(q))
+    st.draws.update(outlier_frac=frac, n_outliers=len(q))
+    return q, hq
 
-    # 3. seabed leaks: a deep flier lowers its cell's minimum by d; the bilinear ground estimate dips
-    #    as that cell's hat (half-width one cell), so heights there rise and seabed points get through
-    r = g["leak"]
+
+def _dr_leaks(st: _DRState, scene: PreparedScene, params: dict, r: np.random.Generator, q: np.ndarray,
+              hq: np.ndarray):
+    """3. Seabed leaks: a deep flier lowers its cell's minimum by d; the bilinear ground estimate dips
+    as that cell's hat (half-width one cell), so heights there rise (st.h, and the spikes' at q with
+    heights hq) and seabed points get through. Returns (spike heights, leaked xyz (m, 3), their
+    heights (m,))."""
+    cell, lo, hi, thr = st.cell, st.lo, st.hi, st.thr
     n_patch = _draw_int(r, params["dr_leak_patches"])
-    cells = np.c_[r.integers(0, grid_shape[0], n_patch), r.integers(0, grid_shape[1], n_patch)]
+    cells = np.c_[r.integers(0, st.grid_shape[0], n_patch), r.integers(0, st.grid_shape[1], n_patch)]
     dips = r.uniform(float(params["dr_leak_depth_m"][0]), float(params["dr_leak_depth_m"][1]), n_patch)
-    centres = grid_lo + (cells + 0.5) * cell
-    n_removed = max(int(scene.n_raw) - len(scene.xyz), 0) if use_filter else 0
+    centres = st.grid_lo + (cells + 0.5) * cell
+    n_removed = max(int(scene.n_raw) - len(scene.xyz), 0) if st.use_filter else 0
     area = float(np.prod(np.maximum(hi - lo, 1e-6)))
     rho = n_removed / area  # seabed soundings per m^2 that the ground filter removed
     leak_xy, leak_h0, leak_h = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
     out_h = hq
     if n_patch:
-        dgrid = np.zeros(grid_shape)
+        dgrid = np.zeros(st.grid_shape)
         np.maximum.at(dgrid, (cells[:, 0], cells[:, 1]), dips)  # the deepest flier sets a cell's minimum
 
         def dip(xy):
-            return ground_at(grid_lo, dgrid, cell, xy)
+            return ground_at(st.grid_lo, dgrid, cell, xy)
 
         counts = r.poisson(rho * (2 * cell) ** 2, n_patch)
         owner = np.repeat(np.arange(n_patch), counts)
@@ -589,21 +662,20 @@ def domain_randomise(scene: PreparedScene, params: dict, rng: np.random.Generato
         leak_h = leak_h0 + dip(leak_xy)
         ok = leak_h > thr
         leak_xy, leak_h0, leak_h = leak_xy[ok], leak_h0[ok], leak_h[ok]
-        ok = ~_in_box_footprints(leak_xy, boxes, DR_BOX_MARGIN_M)
+        ok = ~_in_box_footprints(leak_xy, st.boxes, DR_BOX_MARGIN_M)
         leak_xy, leak_h0, leak_h = leak_xy[ok], leak_h0[ok], leak_h[ok]
-        h = h + dip(xyz[:, :2])
+        st.h = st.h + dip(st.xyz[:, :2])
         out_h = hq + dip(q)
-    leak_xyz = np.c_[leak_xy, ground(leak_xy) + leak_h0] if len(leak_xy) else np.zeros((0, 3))
-    draws.update(leak_centres=centres, leak_depths_m=dips, n_leak=len(leak_xy))
+    leak_xyz = np.c_[leak_xy, st.ground(leak_xy) + leak_h0] if len(leak_xy) else np.zeros((0, 3))
+    st.draws.update(leak_centres=centres, leak_depths_m=dips, n_leak=len(leak_xy))
+    return out_h, leak_xyz, leak_h
 
-    # the pool: kept scene points + spikes + leaked seabed
-    xyz = np.concatenate([xyz, out_xyz, leak_xyz])
-    h = np.concatenate([h, out_h, leak_h])
-    label = np.concatenate([label, np.full(len(out_xyz) + len(leak_xyz), -1, np.int64)])
-    src = np.concatenate([src, np.full(len(out_xyz), -2), np.full(len(leak_xyz), -1)]).astype(np.int64)
 
-    # 4. sampling weights: smooth density field, dropout blobs
-    r = g["density"]
+def _dr_weights(st: _DRState, params: dict, r_density: np.random.Generator,
+                r_dropout: np.random.Generator) -> np.ndarray:
+    """4. Sampling weights (n,) of the pool: the smooth density field, 0 inside the dropout blobs."""
+    xyz, draws = st.xyz, st.draws
+    r = r_density
     draws.update(density_contrast=_draw(r, params["dr_density_contrast"]),
                  density_azimuth_rad=r.uniform(0.0, 2 * math.pi, DR_DENSITY_WAVES),
                  density_wavelength_m=r.uniform(*DR_DENSITY_WAVELENGTH_M, DR_DENSITY_WAVES),
@@ -611,7 +683,7 @@ def domain_randomise(scene: PreparedScene, params: dict, rng: np.random.Generato
     wave = _density_wave(xyz[:, :2], draws)
     draws["density_wave_range"] = (float(wave.min()), float(wave.max())) if len(wave) else (0.0, 0.0)
     weight = dr_density_weight(xyz[:, :2], draws)
-    r = g["dropout"]
+    r = r_dropout
     n_blob = _draw_int(r, params["dr_dropout_blobs"])
     bc = xyz[r.integers(0, len(xyz), n_blob), :2]
     ba = r.uniform(float(params["dr_dropout_radius_m"][0]), float(params["dr_dropout_radius_m"][1]), n_blob)
@@ -624,68 +696,67 @@ def domain_randomise(scene: PreparedScene, params: dict, rng: np.random.Generato
         b = (-math.sin(bt[j]) * d[:, 0] + math.cos(bt[j]) * d[:, 1]) / max(bb[j], 1e-9)
         weight[near[a * a + b * b <= 1.0]] = 0.0
     draws["blobs"] = np.c_[bc, ba, bb, bt] if n_blob else np.zeros((0, 5))
+    return weight
 
-    # sample
-    idx = weighted_sample(weight, n_points, g["sample"])
-    xyz, h, label, src = xyz[idx], h[idx], label[idx], src[idx]
 
-    # 5. smooth z field: tilt + smile + heave (z only; the ground estimate follows it)
-    r = g["zfield"]
-    half = 0.5 * float(np.max(hi - lo))
-    draws.update(
+def _dr_z_field(st: _DRState, params: dict, r: np.random.Generator) -> None:
+    """5. Smooth z field: tilt + smile + heave (z only; the ground estimate follows it)."""
+    half = 0.5 * float(np.max(st.hi - st.lo))
+    st.draws.update(
         tilt_rad=math.radians(_draw(r, params["dr_tilt_deg"])), tilt_azimuth_rad=float(r.uniform(0, 2 * math.pi)),
         smile_k=_draw(r, params["dr_smile_coeff"]), smile_depth_m=float(params["dr_smile_depth_m"]),
         track_rad=float(r.uniform(0, math.pi)), track_offset_m=float(r.uniform(-half, half)),
         heave_m=_draw(r, params["dr_heave_m"]), heave_wavelength_m=_draw(r, params["dr_heave_wavelength_m"]),
         heave_phase_rad=float(r.uniform(0, 2 * math.pi)))
-    xyz[:, 2] += dr_z_field(xyz[:, :2], draws)
-    if K:
-        fz = dr_z_field(boxes[:, :2], draws)
-        boxes[:, 2] += fz
-        axis[:, 2] += fz
+    st.xyz[:, 2] += dr_z_field(st.xyz[:, :2], st.draws)
+    if len(st.boxes):
+        fz = dr_z_field(st.boxes[:, :2], st.draws)
+        st.boxes[:, 2] += fz
+        st.axis[:, 2] += fz
 
-    # 6. vertical offsets of virtual survey lines (strips along the track)
-    r = g["lines"]
+
+def _dr_lines(st: _DRState, params: dict, r: np.random.Generator) -> None:
+    """6. Vertical offsets of virtual survey lines (strips along the track, mixed in the overlaps)."""
     sigma = _draw(r, params["dr_line_offset_m"])
     S = _draw(r, params["dr_line_spacing_m"])
-    draws.update(line_sigma_m=sigma, line_spacing_m=S, line_shift_m=float(r.uniform(0.0, S)))
+    st.draws.update(line_sigma_m=sigma, line_spacing_m=S, line_shift_m=float(r.uniform(0.0, S)))
     band = 0.5 * float(params["dr_line_overlap"]) * S
-    v = _line_coordinate(xyz[:, :2], draws)
-    vb = _line_coordinate(boxes[:, :2], draws) if K else np.zeros(0)
+    K = len(st.boxes)
+    v = _line_coordinate(st.xyz[:, :2], st.draws)
+    vb = _line_coordinate(st.boxes[:, :2], st.draws) if K else np.zeros(0)
     line = np.floor((v + r.uniform(-band, band, len(v))) / S).astype(np.int64)
     low_line = np.floor((v - band) / S).astype(np.int64)
     high_line = np.floor((v + band) / S).astype(np.int64)
     box_line = np.floor(vb / S).astype(np.int64)
     i0 = int(min(low_line.min(), box_line.min(initial=low_line.min())))
     i1 = int(max(high_line.max(), box_line.max(initial=high_line.max())))
-    offs = sigma * r.standard_normal(i1 - i0 + 1)
-    dz = offs[line - i0]
-    xyz[:, 2] += dz
-    h += dz - np.minimum(offs[low_line - i0], offs[high_line - i0])
+    offs = line_offsets_m(sigma, r.standard_normal(i1 - i0 + 1))
+    dz = line_offset_dz(offs, line - i0)
+    st.xyz[:, 2] += dz
+    st.h += dz - np.minimum(line_offset_dz(offs, low_line - i0), line_offset_dz(offs, high_line - i0))
     if K:
-        boxes[:, 2] += offs[box_line - i0]
-        axis[:, 2] += offs[box_line - i0]
-    draws.update(line_first=i0, line_offsets_m=offs)
+        st.boxes[:, 2] += line_offset_dz(offs, box_line - i0)
+        st.axis[:, 2] += line_offset_dz(offs, box_line - i0)
+    st.draws.update(line_first=i0, line_offsets_m=offs)
 
-    # 7. range noise (z and height)
-    r = g["noise"]
+
+def _dr_noise(st: _DRState, params: dict, r: np.random.Generator) -> None:
+    """7. Range noise on z and the height feature."""
     sigma = _draw(r, params["dr_range_noise_m"])
-    n = sigma * r.standard_normal(len(xyz))
-    xyz[:, 2] += n
-    h += n
-    draws["noise_sigma_m"] = sigma
+    dz = range_noise_dz(len(st.xyz), sigma, r)
+    st.xyz[:, 2] += dz
+    st.h += dz
+    st.draws["noise_sigma_m"] = sigma
 
-    # 8. object roughness
-    r = g["roughness"]
+
+def _dr_roughness(st: _DRState, params: dict, r: np.random.Generator) -> None:
+    """8. Object roughness: object points move by N(0, sigma^2) per axis."""
     sigma = _draw(r, params["dr_roughness_m"])
-    d = sigma * r.standard_normal((len(xyz), 3))
-    obj = label >= 0
-    xyz[obj] += d[obj]
-    h[obj] += d[obj, 2]
-    draws["roughness_sigma_m"] = sigma
-
-    return DomainRandomised(xyz.astype(np.float32), h.astype(np.float32), label, boxes.astype(np.float32),
-                            axis.astype(np.float32), src, draws)
+    d = roughness_point_offsets(len(st.xyz), sigma, r)
+    obj = st.label >= 0
+    st.xyz[obj] += d[obj]
+    st.h[obj] += d[obj, 2]
+    st.draws["roughness_sigma_m"] = sigma
 
 
 def collate(items: list[tuple], device) -> dict:
