@@ -1,12 +1,12 @@
 """Model-based detector: speed, work done and accuracy of the `paper` and `ours` variants.
 
-For N scenes of a split (default: the first 5 of results/splits/test.txt) and each variant: seconds per
+For N scenes of a split (default: the first 5 of results/splits/dev.txt: never the test split) and each variant: seconds per
 scene (per stage), windows / proposals, skipped ones, ICP runs, and the nuScenes centre-distance AP per
 class at 0.5 m (sonardet.eval.evaluate.evaluate, visible ground truth only) with the mean over classes.
 On the first scene it also reruns the paper variant with empty-window skipping disabled
 (`skip_empty_windows: False`) and reports the time the skipping saves.
 
-    python benchmarks/detect.py [--scenes 5] [--split test] [--variants paper,ours] [--results results]
+    python benchmarks/detect.py [--scenes 5] [--split dev] [--variants paper,ours] [--results results]
                                 [--params-ours '{"icp_xy_starts_m": 0}'] [--json out.json] [--no-skip-compare]
 
 Run it on 2 cores for the figures quoted in the README (e.g. `taskset -c 0,1 python benchmarks/detect.py`).
@@ -56,7 +56,7 @@ def evaluate_map(gt: dict, dets: dict, objects: dict, classes: list) -> dict | N
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--results", default="results")
-    ap.add_argument("--split", default="test")
+    ap.add_argument("--split", default="dev", help="split whose scenes are timed (default dev; the test split is for the final evaluation only)")
     ap.add_argument("--scenes", type=int, default=5, help="number of scenes of the split (0: all)")
     ap.add_argument("--variants", default="paper,ours")
     ap.add_argument("--params-ours", default="{}", help="JSON overrides of the ours defaults")

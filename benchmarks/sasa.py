@@ -1,6 +1,6 @@
-"""Speed and memory of the SASA detector (sonardet.detect.sasa): training step, inference, PAPER epoch cost.
+"""Speed and memory of the SASA detector (sonardet.detect.sasa): training step, inference, STUDY epoch cost.
 
-For each configuration (``DEFAULTS`` = the 2-core CPU budget, ``PAPER`` = the study's network with
+For each configuration (``DEFAULTS`` = the 2-core CPU budget, ``STUDY`` = the study's network with
 batch 8 and 16384 points) a fresh subprocess (so that peak memory is its own):
 
 1. prepares the scenes (ground filter, local frame) and reports the seconds per scene;
@@ -15,7 +15,7 @@ batch 8 and 16384 points) a fresh subprocess (so that peak memory is its own):
 Scenes: ``results/scenes/*.npz`` listed in ``results/splits/train.txt`` (the first ``--n-scenes``);
 with ``--synthetic`` (or when none exist) synthetic scenes of the same size are made on the fly.
 
-Usage: ``python benchmarks/sasa.py [--threads 2] [--steps 5] [--configs DEFAULTS,PAPER] [--device cpu]
+Usage: ``python benchmarks/sasa.py [--threads 2] [--steps 5] [--configs DEFAULTS,STUDY] [--device cpu]
 [--json out.json]``. Timings are machine-dependent: compare rows taken on the same machine only.
 """
 
@@ -87,12 +87,12 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
             train_scenes: int, q) -> None:
     import torch
 
-    from sonardet.detect.sasa import DEFAULTS, PAPER, SASADetector, TrainedSASA, resolve_params
+    from sonardet.detect.sasa import DEFAULTS, STUDY, SASADetector, TrainedSASA, resolve_params
     from sonardet.detect.sasa.data import prepare_scene
     from sonardet.detect.sasa.trainer import _make_batch, peak_memory_mb, resolve_device
 
     torch.set_num_threads(threads)
-    base = {"DEFAULTS": DEFAULTS, "PAPER": PAPER}[name]
+    base = {"DEFAULTS": DEFAULTS, "STUDY": STUDY}[name]
     params = resolve_params(overrides, base=base)
     dev = resolve_device(device)
     bs = int(params["batch_size"])
@@ -147,9 +147,9 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--steps", type=int, default=5, help="timed training steps per configuration")
     ap.add_argument("--warmup", type=int, default=1)
-    ap.add_argument("--n-scenes", type=int, default=8, help="scenes loaded (>= the PAPER batch size)")
+    ap.add_argument("--n-scenes", type=int, default=8, help="scenes loaded (>= the STUDY batch size)")
     ap.add_argument("--train-scenes", type=int, default=80, help="training-set size for the epoch estimate")
-    ap.add_argument("--configs", default="DEFAULTS,PAPER")
+    ap.add_argument("--configs", default="DEFAULTS,STUDY")
     ap.add_argument("--device", default=None, help="cpu, cuda (default: cuda if available)")
     ap.add_argument("--synthetic", action="store_true", help="use synthetic scenes even if results/ has some")
     ap.add_argument("--json", default=None)

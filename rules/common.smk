@@ -20,6 +20,7 @@ from sonardet.config import (
 )
 from sonardet.experiments.ablation import point_method
 from sonardet.survey import enabled_surveys, tile_ids
+from sonardet.seeds import derive_seed
 from sonardet.sim.dataset import make_splits, scene_ids, split_names
 
 try:
@@ -30,23 +31,28 @@ config.clear()
 config.update(_validated)
 
 CLASSES = config["classes"]
-SCENES = scene_ids(config["scenes"]["n_scenes"])
+#: Every scene id: the study's pool (train + test), then the development scenes.
+SCENES = scene_ids(config["scenes"]["n_scenes"] + config["split"]["n_dev"])
 SPLITS = split_names(config["split"]["fractions"])
 # The split is a pure function of the config, so the DAG knows the test scenes without a checkpoint;
 # the split rule writes the same lists to results/splits/ for users and other tools.
 SPLIT = make_splits(
     SCENES,
     config["split"]["n_test"],
-    config["split"]["n_val"],
+    config["split"]["n_dev"],
     config["split"]["fractions"],
     config["seed"],
 )
-#: Evaluation datasets: name -> scene ids, and the folder holding their scene files.
-DATASETS = {"synthetic": SPLIT["test"]}
-DATASET_DIRS = {"synthetic": "results/scenes"}
+#: Evaluation datasets: name -> scene ids, and the folder holding their scene files. The test sets
+#: (synthetic, realism, hybrid) are read only by the final detection and evaluation of each method;
+#: their development counterparts (dev, realism_dev) serve every choice and the ablations.
+DATASETS = {"synthetic": SPLIT["test"], "dev": SPLIT["dev"]}
+DATASET_DIRS = {"synthetic": "results/scenes", "dev": "results/scenes"}
 if config["realism_test"]["enabled"]:
     DATASETS["realism"] = SPLIT["test"]
     DATASET_DIRS["realism"] = "results/realism/scenes"
+    DATASETS["realism_dev"] = SPLIT["dev"]
+    DATASET_DIRS["realism_dev"] = "results/realism/scenes"
 HYBRID = config["hybrid_test"]["enabled"] and os.path.exists(
     config["hybrid_test"]["soundings"]
 )
@@ -66,7 +72,14 @@ METHOD = {m.name: m for m in method_registry.configured(config)}
 #: The methods of the main tables, and the variants paired with them (e.g. SASA with domain
 #: randomisation beside plain SASA).
 METHODS = [m.name for m in method_registry.main_methods(config)]
-VARIANTS = {m.name: m.variant_of for m in method_registry.variants(config)}
+VARIANTS = {
+    m.name: m.variant_of
+    for m in method_registry.variants(config, group="domain_randomisation")
+}
+#: Extra training seeds of the largest fraction: seed variant -> main method.
+SEEDS = {m.name: m.variant_of for m in method_registry.variants(config, group="seeds")}
+#: The improvement ladder's extra steps (model-based variants run on the synthetic test set).
+LADDER = [m.name for m in METHOD.values() if m.group == "ladder"]
 TRAINED = [n for n, m in METHOD.items() if m.trained]
 
 
@@ -79,17 +92,19 @@ PER_SCENE_RE = _alternation(n for n, m in METHOD.items() if m.runner == "per_sce
 PER_DATASET_RE = _alternation(n for n, m in METHOD.items() if m.runner == "per_dataset")
 TRAINED_RE = _alternation(TRAINED)
 
-#: One-at-a-time realism ablation: effect -> dataset name; its scenes are the first test scenes.
+#: One-at-a-time realism ablation: effect -> dataset name; its scenes are the first dev scenes.
 REALISM_EFFECT_KEYS = realism_effects(config)
 REALISM_EFFECTS = {e: f"realism_{e}" for e in REALISM_EFFECT_KEYS}
-REALISM_ABLATION_SCENES = SPLIT["test"][: config["realism_ablation"]["n_scenes"]]
+REALISM_ABLATION_SCENES = SPLIT["dev"][: config["realism_ablation"]["n_scenes"]]
 for _effect, _dataset in REALISM_EFFECTS.items():
     DATASETS[_dataset] = REALISM_ABLATION_SCENES
     DATASET_DIRS[_dataset] = f"results/realism_ablation/{_effect}/scenes"
 #: Datasets of the realism ablation's summary: plain sensor, every effect, one effect at a time.
-REALISM_ABLATION_DATASETS = ["synthetic", "realism"] + list(REALISM_EFFECTS.values())
+REALISM_ABLATION_DATASETS = ["dev", "realism_dev"] + list(REALISM_EFFECTS.values())
 #: Datasets evaluated on their own (the ablation datasets are evaluated together, in one job).
 EVAL_DATASETS = [d for d in DATASETS if d not in REALISM_EFFECTS.values()]
+#: The test sets (final results); the others are development sets.
+TEST_DATASETS = [d for d in ("synthetic", "realism", "hybrid") if d in DATASETS]
 #: Ablation grid points by name, the method each runs, and the test scenes they run on.
 ABLATION = (
     {p["name"]: p for p in config["ablation"]["points"]}
@@ -97,7 +112,7 @@ ABLATION = (
     else {}
 )
 ABLATION_METHOD = {name: point_method(p, config) for name, p in ABLATION.items()}
-ABLATION_SCENES = SPLIT["test"][: config["ablation"]["n_scenes"]]
+ABLATION_SCENES = SPLIT["dev"][: config["ablation"]["n_scenes"]]
 #: Scheduling per rule group, from the config (workflow.priorities, workflow.mem_mb).
 PRIORITY = config["workflow"]["priorities"]
 MEM_MB = config["workflow"]["mem_mb"]
@@ -142,7 +157,7 @@ def dataset_scene_file(dataset, scene, ext):
 
 
 def split_scene_files(name, ext):
-    """Scene files of a split (train, val, test, train_{fraction})."""
+    """Scene files of a split (train, dev, test, train_{fraction})."""
     return expand("results/scenes/{scene}.{ext}", scene=SPLIT[name], ext=ext)
 
 
@@ -186,9 +201,20 @@ def metrics_file(method, dataset, name="metrics.json"):
     return f"results/eval/{method}/{dataset}/{name}"
 
 
+def methods_on(dataset):
+    """The configured methods run and evaluated on a dataset."""
+    return [m for m in METHOD if METHOD[m].runs_on(dataset)]
+
+
 def eval_files(methods=None):
-    """metrics.json of every method (default: all configured) on every evaluation dataset."""
-    return [metrics_file(m, d) for m in (methods or METHOD) for d in EVAL_DATASETS]
+    """metrics.json of every method (default: all configured) on every evaluation dataset it runs on,
+    and the comparison (bootstrap intervals, scorings) of each evaluation dataset."""
+    return [
+        metrics_file(m, d)
+        for m in (methods or METHOD)
+        for d in EVAL_DATASETS
+        if METHOD[m].runs_on(d)
+    ] + [f"results/eval/compare/{d}.json" for d in EVAL_DATASETS]
 
 
 def method_resources(method):
@@ -242,13 +268,22 @@ if config["noise"]["enabled"] and not NOISE:
 
 #: Report tables and figures written by the report rule; captions in config/report/ (table_*.rst, figure_*.rst).
 REPORT_TABLES = (
-    ["dataset", "comparison", "fractions", "timing"]
+    [
+        "dataset",
+        "comparison",
+        "differences",
+        "ladder",
+        "dont_care",
+        "fractions",
+        "timing",
+    ]
     + (["comparison_realism"] if "realism" in DATASETS else [])
     + (["ablation"] if ABLATION else [])
     + (["noise"] if NOISE else [])
     + (["comparison_hybrid"] if "hybrid" in DATASETS else [])
     + (["realism_ablation"] if REALISM_EFFECTS else [])
     + (["domain_randomisation"] if VARIANTS else [])
+    + (["seeds"] if SEEDS else [])
 )
 REPORT_FIGURES = (
     ["topview", "poses3d", "pr_curves", "dataset_example"]
@@ -305,8 +340,8 @@ def train_inputs(wildcards):
     return {
         "train": split_scene_files(f"train_{fraction}", "npz"),
         "train_labels": split_scene_files(f"train_{fraction}", "json"),
-        "val": split_scene_files("val", "npz"),
-        "val_labels": split_scene_files("val", "json"),
+        "val": split_scene_files("dev", "npz"),
+        "val_labels": split_scene_files("dev", "json"),
     }
 
 
@@ -316,8 +351,8 @@ def ablation_reference_methods():
     return [
         {
             "method": METHOD[m].to_dict(),
-            "detections": detection_files(m, "synthetic", ABLATION_SCENES),
-            "timing": timing_files(m, "synthetic", ABLATION_SCENES),
+            "detections": detection_files(m, "dev", ABLATION_SCENES),
+            "timing": timing_files(m, "dev", ABLATION_SCENES),
             "train": model_file(m, "train.json") if METHOD[m].trained else None,
         }
         for m in METHODS
@@ -330,7 +365,7 @@ def realism_ablation_effects():
     """
     if not REALISM_EFFECTS:
         return {}
-    sets = {"none": "synthetic", "all": "realism", **REALISM_EFFECTS}
+    sets = {"none": "dev", "all": "realism_dev", **REALISM_EFFECTS}
     methods = config["realism_ablation"]["methods"]
     return {
         effect: {
@@ -371,8 +406,21 @@ def report_manifest():
             for m in main
         ],
         "variants": VARIANTS,
-        "datasets": EVAL_DATASETS,
-        "metrics": {m: {d: metrics_file(m, d) for d in EVAL_DATASETS} for m in METHOD},
+        "seeds": SEEDS,
+        "datasets": TEST_DATASETS,
+        "metrics": {
+            m: {d: metrics_file(m, d) for d in EVAL_DATASETS if METHOD[m].runs_on(d)}
+            for m in METHOD
+        },
+        "compare": {d: f"results/eval/compare/{d}.json" for d in EVAL_DATASETS},
+        "ladder": [
+            {
+                "name": m,
+                "step": METHOD[m].settings["step"],
+                "timing": timing_files(m, "synthetic"),
+            }
+            for m in LADDER
+        ],
         "pr": {m: metrics_file(m, "synthetic", "pr_curves.npz") for m in METHODS},
         "detections": {
             d: {m: {s: detection_file(m, d, s) for s in DATASETS[d]} for m in METHODS}

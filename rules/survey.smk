@@ -92,6 +92,7 @@ rule survey_detections:
         mem_mb=MEM_MB["survey"],
     params:
         method=lambda w: SURVEY_METHOD[w.survey].name,
+        all_hypotheses=lambda w: SURVEYS[w.survey]["all_hypotheses"],
         source=lambda w: SURVEYS[w.survey]["path"],
         classes=CLASSES,
     script:

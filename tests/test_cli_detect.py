@@ -96,6 +96,44 @@ def _near(dets, box, tol_m):
     return [d for d in dets if np.linalg.norm(np.subtract(d["box"][:3], box[:3])) < tol_m]
 
 
+FIXED_METHOD = """
+from sonardet import methods
+from sonardet.methods import Method, MethodFamily
+
+
+class Fixed(MethodFamily):
+    name, label, prefix = "fixed", "test", "fixed"
+
+    def methods(self, config):
+        return [Method(name="fixed", family="fixed", resources=())]
+
+    def load(self, method, resources):
+        def detector(xyz):
+            c = xyz.mean(0)
+            box = [float(c[0]), float(c[1]), float(c[2]), 1.0, 1.0, 1.0, 0.0]
+            return ([{"cls": "reef_cone", "box": box, "score": 0.9, "extras": {"accepted": True}},
+                     {"cls": "reef_ring", "box": box, "score": 0.05, "extras": {"accepted": False}}],
+                    {"seconds": {"total": 0.0}})
+        return detector
+
+
+methods.register(Fixed())
+"""
+
+
+def test_all_hypotheses_on_request(survey_xyz, tmp_path):
+    """Only the boxes a method accepted are written unless `--all-hypotheses`; a method registered by
+    a plugin (`--plugins`) runs like the built-in ones."""
+    plugin = tmp_path / "fixed_method.py"
+    plugin.write_text(FIXED_METHOD)
+    common = ["detect", "--input", str(survey_xyz), "--method", "fixed", "--plugins", str(plugin)]
+    assert main([*common, "--out", str(tmp_path / "acc.json")]) == 0
+    assert [d["cls"] for d in read_detections(tmp_path / "acc.json")["detections"]] == ["reef_cone"]
+    assert main([*common, "--out", str(tmp_path / "all.json"), "--all-hypotheses"]) == 0
+    dets = read_detections(tmp_path / "all.json")["detections"]
+    assert [(d["cls"], d["extras"]["accepted"]) for d in dets] == [("reef_cone", True), ("reef_ring", False)]
+
+
 def test_detect_writes_json_csv_geojson_in_utm(survey, survey_xyz, results_dir, tmp_path, capsys):
     out = tmp_path / "line_0007.json"
     rc = main(["detect", "--input", str(survey_xyz), "--out", str(out), "--csv", str(tmp_path / "d.csv"),
@@ -108,6 +146,7 @@ def test_detect_writes_json_csv_geojson_in_utm(survey, survey_xyz, results_dir, 
     assert doc["scene"] == "line_0007" and doc["method"] == "model_based_ours" and doc["crs"] == "EPSG:32610"
     dets = doc["detections"]
     acc = _accepted(dets)
+    assert acc == dets  # accepted objects only, unless --all-hypotheses
     assert sorted(d["cls"] for d in acc) == ["reef_cone", "tetrapod_s"]
     for cls, box in survey[1]:
         hit = _near(acc, box, 0.1)

@@ -26,7 +26,7 @@ def test_paper_config_is_valid():
     for k, v in paper.items():  # Snakemake merges --configfile sections into the configfile's
         merged[k] = {**merged.get(k, {}), **v} if isinstance(v, dict) else v
     cfg = validate_config(merged)
-    assert cfg["sasa"]["preset"] == "paper" and not cfg["ablation"]["enabled"]
+    assert cfg["sasa"]["preset"] == "study" and not cfg["ablation"]["enabled"] and cfg["sasa"]["seeds"] == 3
 
 
 def test_partial_section_keeps_defaults():

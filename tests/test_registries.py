@@ -21,8 +21,13 @@ CENTROID = str(REPO / "tests" / "plugins" / "centroid_method.py")
 
 def test_default_methods_come_from_the_registry(default_config):
     names = [m.name for m in methods.configured(default_config)]
-    assert names == ["model_based_paper", "model_based_ours", "sasa_25", "sasa_50", "sasa_100", "sasa_dr_100"]
-    assert [m.name for m in methods.main_methods(default_config)] == names[:-1]
+    assert names == ["model_based_paper", "model_based_ours", "model_based_paper_tight", "sasa_25", "sasa_50",
+                     "sasa_100", "sasa_dr_100"]
+    assert [m.name for m in methods.main_methods(default_config)] == [n for n in names if n not in (
+        "model_based_paper_tight", "sasa_dr_100")]
+    tight = methods.get("model_based_paper_tight", default_config)
+    assert tight.group == "ladder" and tight.datasets == ("synthetic",)
+    assert tight.settings["params"]["score"] == "tight_fitness" and tight.settings["variant"] == "paper"
     dr = methods.get("sasa_dr_100", default_config)
     assert dr.variant_of == "sasa_100" and dr.settings["params"]["dr_enabled"] is True
     ours = methods.get("model_based_ours", default_config)

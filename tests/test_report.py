@@ -214,7 +214,9 @@ def test_comparison_table_matches_metrics_and_has_labelled_study_rows(run):
     assert study.loc["SASA (study)", "mAP@0.5m"] == 0.98 and study.loc["SASA (study)", "predictions"] == 991
     assert study.loc["model-based (study)", "mAP@0.5m"] == 0.97
     assert study.loc["model-based (study)", "predictions"] == 957
-    assert study[[f"AP@0.5m {c}" for c in CLASSES]].isna().all().all()
+    # The study's per-class APs (ring, cone, tetrapod_b, tetrapod_s), as published.
+    assert study.loc["SASA (study)", [f"AP@0.5m {c}" for c in CLASSES]].tolist() == [0.98, 0.99, 0.98, 0.96]
+    assert study.loc["model-based (study)", [f"AP@0.5m {c}" for c in CLASSES]].tolist() == [0.98, 0.98, 0.97, 0.97]
     assert "SASA (study)" not in comparison_table(run["metrics"], CLASSES, study=False)["method"].tolist()
 
 
@@ -281,7 +283,7 @@ def test_dataset_table_with_study_figures(run):
     assert df.loc["train", "scenes"] == 1 and df.loc["all", "objects"] == 8
     assert df.loc["all", "reef_ring"] == "2 (25.0 %)"
     assert df.loc["train", "scenes (study)"] == 80 and df.loc["test", "scenes (study)"] == 20
-    assert df.loc["all", "objects (study)"] == 5491 and pd.isna(df.loc["train", "objects (study)"])
+    assert df.loc["all", "objects (study)"] == 5491 and df.loc["train", "objects (study)"] == 4518
 
 
 def test_write_table_csv_markdown_latex(run, tmp_path):
@@ -293,7 +295,7 @@ def test_write_table_csv_markdown_latex(run, tmp_path):
     assert back["mAP@0.5m"].tolist() == pytest.approx(df["mAP@0.5m"].tolist())
     md = paths[1].read_text()
     assert md.splitlines()[2].startswith("| method | source | mAP@0.5m |")
-    assert "| SASA (study) | source study | 0.980 | 991 |" in md
+    assert "| SASA (study) | source study | 0.980 |  |  | 991 |" in md
     tex = paths[2].read_text()
     for s in ("\\toprule", "\\midrule", "\\bottomrule", "\\label{tab:comparison}", "model\\_based\\_paper",
               "20 \\% test", "SASA (study)"):

@@ -381,3 +381,42 @@ def test_collate_pads_boxes():
 def test_unknown_parameter_is_named():
     with pytest.raises(ValueError, match="unknown SASA parameter 'n_point'"):
         resolve_params({"n_point": 10})
+
+
+def test_epochs_are_chosen_on_the_dev_scenes(tmp_path):
+    """The dev mAP is measured every val_every_epochs, the best model is kept and training stops after
+    early_stop_patience evaluations without improvement (the cap is `epochs`)."""
+    train_set = [make_scene(tmp_path, f"s{i:04d}", i, CLASSES[:2]) for i in range(2)]
+    dev = [make_scene(tmp_path, f"d{i:04d}", 10 + i, CLASSES[:2]) for i in range(2)]
+    params = {**TINY, "classes": CLASSES, "epochs": 8, "lr": 0.002, "val_every_epochs": 1,
+              "early_stop_patience": 2, "early_stop_min_delta": 0.5}  # an impossible gain: stops after 3 evals
+    out = tmp_path / "run"
+    summary = train(train_set, dev, params, out)
+    rows = (out / "loss.csv").read_text().splitlines()
+    header = rows[0].split(",")
+    assert "val_mAP" in header and len(rows) - 1 == summary["epochs"] == 3 and summary["stopped_early"]
+    assert summary["epochs_cap"] == 8 and summary["best_epoch"] == 1
+    assert summary["n_parameters"] > 1000 and summary["n_points"] == TINY["n_points"]
+    # model.pt is the best epoch's model: its dev mAP is the one recorded for that epoch.
+    first = dict(zip(header, rows[1].split(",")))
+    assert summary["val"]["mAP_headline"] == pytest.approx(float(first["val_mAP"]), abs=1e-9)
+    # Resuming a finished, early-stopped run trains nothing more.
+    again = train(train_set, dev, params, out)
+    assert again["epochs"] == 3 and again["steps"] == summary["steps"]
+
+
+@pytest.mark.slow
+def test_study_preset_runs_on_cpu(tmp_path):
+    """The study's SASA (reference network, 16384 raw points, no ground filter) takes a training step
+    and detects on CPU (slowly; the full budget is meant for a GPU)."""
+    from sonardet.detect.sasa import STUDY
+
+    scenes = [make_scene(tmp_path, f"s{i:04d}", i, CLASSES, density=90.0) for i in range(2)]
+    params = resolve_params({"classes": CLASSES, "batch_size": 2, "epochs": 1, "val_every_epochs": 0,
+                             "progress": False}, STUDY)
+    assert params["ground_filter"] is False and params["n_points"] == 16384 and params["nms_iou"] == 0.01
+    summary = train(scenes, [], params, tmp_path / "study")
+    assert summary["steps"] == 1 and summary["n_parameters"] > 2_000_000
+    assert summary["kept_points_per_scene"]["min"] > 16384  # every sounding kept: seabed included
+    dets, _ = infer(tmp_path / "study" / "model.pt", scenes[:1], params={"num_threads": 1, "progress": False})
+    assert set(dets) == {"s0000"}

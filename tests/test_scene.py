@@ -23,7 +23,7 @@ SMALL = {
                "class_mix": {"tetrapod_s": 0.4, "reef_ring": 0.3, "reef_cone": 0.15, "tetrapod_b": 0.15}, "n_rocks": [2, 3], "cluster_max": 4,
                "pile_max": 5, "big_spacing_m": [5, 6], "scatter_fraction": [0.2, 0.3],
                "physics": {"max_time_s": 5.0}},
-    "split": {"n_test": 1, "n_val": 1},
+    "split": {"n_test": 1, "n_dev": 1},
 }
 
 
@@ -134,16 +134,16 @@ def test_piles_have_upper_layers(small):
 
 
 def test_split_is_nested_and_disjoint():
-    ids = scene_ids(100)
+    ids = scene_ids(105)
     sp = make_splits(ids, 20, 5, [25, 50, 100], seed=3)
-    assert len(sp["test"]) == 20 and len(sp["train"]) == 80
+    assert len(sp["test"]) == 20 and len(sp["train"]) == 80 and len(sp["dev"]) == 5
     assert not set(sp["test"]) & set(sp["train"])
-    assert set(sp["val"]) <= set(sp["train"])
+    assert not set(sp["dev"]) & (set(sp["train"]) | set(sp["test"]))
     assert set(sp["train_25"]) <= set(sp["train_50"]) <= set(sp["train_100"]) == set(sp["train"])
     assert len(sp["train_25"]) == 20 and len(sp["train_50"]) == 40
     assert sp == make_splits(ids, 20, 5, [25, 50, 100], seed=3)
     with pytest.raises(ValueError, match="n_test"):
-        make_splits(ids[:5], 5, 0, [100], seed=3)
+        make_splits(ids[:6], 5, 1, [100], seed=3)
 
 
 def test_dataset_stats_counts_visible_objects():

@@ -79,7 +79,7 @@ def _recorded_tiled_inputs(xyz, tile_m, overlap_m):
 def test_survey_settings_take_the_schema_defaults():
     s = survey_settings("line1", {"path": "a.xyz"})
     assert s == {"name": "line1", "path": "a.xyz", "enabled": True, "crs": None, "method": "model_based_ours", "tile_m": 40.0,
-                 "overlap_m": 3.0, "chunk_points": 1_000_000}
+                 "overlap_m": 3.0, "chunk_points": 1_000_000, "all_hypotheses": False}
     # The defaults are those of `sonardet detect` (tile 40 m, overlap 3 m).
     from sonardet.cli import build_parser
 

@@ -34,8 +34,10 @@ def smoke_run(tmp_path_factory):
 #: The smoke config's classes: the four reef elements and a fifth one from a plugin (tests/plugins).
 CLASSES = ["reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s", "concrete_cube"]
 REAL_SOUNDINGS = REAL_FILE.parent / "r2sonic_sfbay_soundings.csv.gz" if REAL_FILE is not None else None
-#: Test sets evaluated on their own (the hybrid one needs the real line).
-EVAL_SETS = ("synthetic", "realism") + (("hybrid",) if REAL_FILE is not None else ())
+#: Test sets evaluated on their own (the hybrid one needs the real line), and the development sets.
+TEST_SETS = ("synthetic", "realism") + (("hybrid",) if REAL_FILE is not None else ())
+DEV_SETS = ("dev", "realism_dev")
+EVAL_SETS = TEST_SETS + DEV_SETS
 
 
 def test_objects_well_formed(smoke_run):
@@ -63,28 +65,38 @@ def _test_scenes(work):
     return (work / "results/splits/test.txt").read_text().split()
 
 
+def _dev_scenes(work):
+    return (work / "results/splits/dev.txt").read_text().split()
+
+
 def test_scenes_and_dataset_table(smoke_run):
     ids = sorted(p.stem for p in (smoke_run / "results/scenes").glob("*.npz"))
-    assert ids == ["s0000", "s0001", "s0002", "s0003"]
+    assert ids == ["s0000", "s0001", "s0002", "s0003", "s0004"]  # the pool of 4, then the dev scene
+    assert _dev_scenes(smoke_run) == ["s0004"]
     stats = (smoke_run / "results/tables/dataset_stats.csv").read_text().splitlines()
-    assert stats[0].startswith("split") and len(stats) == 4  # header + train, test, all
+    assert stats[0].startswith("split") and len(stats) == 5  # header + train, test, all, dev
 
 
 def test_detections_of_every_method(smoke_run):
     from sonardet.io.annotations import read_detections
 
-    test = _test_scenes(smoke_run)
-    assert len(test) == 1
+    test, dev = _test_scenes(smoke_run), _dev_scenes(smoke_run)
+    assert len(test) == 1 and len(dev) == 1
     ablated = ["model_based_ours", "sasa_100", "sasa_dr_100"]  # realism_ablation.methods of the smoke config
     for method in METHODS + ["sasa_dr_100"]:
-        for sid in test:
-            sets = ("synthetic", "realism") + (("realism_quantisation", "realism_burial") if method in ablated else ())
-            for dataset in sets:
+        sets = [(d, test) for d in ("synthetic", "realism")] + [(d, dev) for d in DEV_SETS]
+        if method in ablated:  # the realism ablation runs on the dev scenes
+            sets += [(d, dev) for d in ("realism_quantisation", "realism_burial")]
+        for dataset, scenes in sets:
+            for sid in scenes:
                 doc = read_detections(smoke_run / f"results/detections/{method}/{dataset}/{sid}.json", CLASSES)
                 assert doc["method"] == method and doc["scene"] == sid
     for variant in ("paper", "ours"):
         st = json.loads((smoke_run / f"results/stats/model_based_{variant}/synthetic/{test[0]}.json").read_text())
         assert st["variant"] == variant and st["n_points"] > 1000 and st["seconds"]["total"] > 0
+    # The ladder's extra step runs on the synthetic test set only.
+    assert (smoke_run / f"results/detections/model_based_paper_tight/synthetic/{test[0]}.json").exists()
+    assert not (smoke_run / "results/detections/model_based_paper_tight/dev").exists()
 
 
 def test_sasa_training_outputs(smoke_run):
@@ -142,11 +154,11 @@ def test_realism_ablation(smoke_run):
     for r in rows:
         assert r["n_scenes"] == 1 and 0.0 <= r["mAP"] <= 1.0 + 1e-9
     none = {r["method"]: r for r in rows if r["effect"] == "none"}
-    # "none" is the plain synthetic scene: its mAP is the main evaluation's.
-    main = json.loads((smoke_run / "results/eval/model_based_ours/synthetic/metrics.json").read_text())
+    # "none" is the plain dev scene: its mAP is the dev evaluation's.
+    main = json.loads((smoke_run / "results/eval/model_based_ours/dev/metrics.json").read_text())
     assert none["model_based_ours"]["mAP"] == pytest.approx(main["mAP_headline"], abs=1e-12)
     # The burial effect sinks objects (only it), the quantisation effect moves soundings onto a 2.9 mm grid.
-    sid = _test_scenes(smoke_run)[0]
+    sid = _dev_scenes(smoke_run)[0]
     plain = json.loads((smoke_run / f"results/scenes/{sid}.json").read_text())
     buried = json.loads((smoke_run / f"results/realism_ablation/burial/scenes/{sid}.json").read_text())
     quant = json.loads((smoke_run / f"results/realism_ablation/quantisation/scenes/{sid}.json").read_text())
@@ -176,8 +188,8 @@ def test_ablation_points_and_reference(smoke_run):
     assert json.loads((smoke_run / "results/ablation/points/sasa50_pts512.json").read_text())["train_time_s"] > 0
     ref = json.loads((smoke_run / "results/ablation/reference.json").read_text())
     assert sorted(r["name"] for r in ref) == sorted(f"{m} (default)" for m in METHODS)
-    # The reference re-evaluates the main run's detections on the same scene: same mAP as the main eval.
-    main = json.loads((smoke_run / "results/eval/model_based_ours/synthetic/metrics.json").read_text())
+    # The reference re-evaluates the main run's detections on the same dev scene: same mAP as its eval.
+    main = json.loads((smoke_run / "results/eval/model_based_ours/dev/metrics.json").read_text())
     assert next(r for r in ref if r["name"] == "model_based_ours (default)")["mAP"] == pytest.approx(
         main["mAP_headline"], abs=1e-12)
 
@@ -186,11 +198,14 @@ def test_report_tables_and_figures(smoke_run):
     from sonardet.report import image_is_informative
 
     tables = smoke_run / "results/report/tables"
-    expected_rows = {"dataset": 3, "comparison": len(METHODS) + 2, "comparison_realism": len(METHODS) + 2,
-                     "fractions": len(METHODS),
-                     "ablation": 2 + len(METHODS)}
+    expected_rows = {"dataset": 4, "comparison": len(METHODS) + 2, "comparison_realism": len(METHODS) + 2,
+                     "fractions": len(METHODS), "ablation": 2 + len(METHODS), "dont_care": len(METHODS),
+                     "ladder": 4,
+                     # vs model_based_ours: every other method (+ sasa_dr_100) on each test set, the
+                     # ladder's paper_tight on the synthetic one
+                     "differences": len(METHODS) + 1 + len(METHODS) * (len(TEST_SETS) - 1)}
     expected_rows["realism_ablation"] = 4  # none, quantisation, burial, all
-    expected_rows["domain_randomisation"] = len(EVAL_SETS)
+    expected_rows["domain_randomisation"] = len(TEST_SETS)
     if REAL_FILE is not None:
         expected_rows["noise"] = 3  # two real patches and the simulator
         expected_rows["comparison_hybrid"] = len(METHODS) + 2
@@ -205,6 +220,10 @@ def test_report_tables_and_figures(smoke_run):
     assert (timing[timing["stage"] == "total"]["mean"] > 0).all()
     comparison = pd.read_csv(tables / "comparison.csv")
     assert comparison["source"].tolist().count("source study") == 2
+    ours = comparison.set_index("method")
+    for m in METHODS:  # every mAP has its bootstrap interval
+        assert ours.loc[m, "map_low"] <= ours.loc[m, "mAP@0.5m"] + 1e-12 <= ours.loc[m, "map_high"] + 2e-12
+    assert ours.loc["sasa_100", "n_parameters"] > 0 and ours.loc["sasa_100", "device"] == "cpu"
     figures = ["topview", "poses3d", "pr_curves", "dataset_example", "loss_curves", "pareto"]
     for name in figures:
         assert image_is_informative(smoke_run / f"results/report/figures/{name}.png"), name
@@ -268,10 +287,10 @@ def test_threshold_change_reruns_only_its_jobs(smoke_run):
                           cwd=smoke_run, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     jobs = _job_counts(proc.stdout + proc.stderr)
-    # Only the changed variant's detections (synthetic, realism, the two realism-ablation sets and the
-    # hybrid set), their evaluations and what reads them.
+    # Only the changed variant's detections (test sets, dev sets, the two realism-ablation sets), their
+    # evaluations and comparisons and what reads them.
     n_sets = len(EVAL_SETS)
-    assert jobs == {"detect_scene": n_sets + 2, "evaluate": n_sets, "ablation_reference": 1,
+    assert jobs == {"detect_scene": n_sets + 2, "evaluate": n_sets, "compare": n_sets, "ablation_reference": 1,
                     "realism_ablation": 1, "report": 1, "all": 1}, jobs
 
 

@@ -18,7 +18,7 @@ with job(snakemake, "evaluate") as log:  # noqa: F821
         smk.input.scenes, smk.input.detections, smk.output.metrics, smk.output.per_class, smk.output.pr,
         smk.params.classes, ev["dist_thresholds_m"], ev["headline_m"], symmetric_classes=symmetric,
         min_recall=ev["min_recall"], min_precision=ev["min_precision"], dataset=smk.wildcards.dataset,
-        yaw_periods_rad=periods,
+        yaw_periods_rad=periods, max_boxes_per_scene=ev["max_boxes_per_scene"],
     )
     log.info("%s on %s: mAP@%.1f m = %.4f", smk.wildcards.method, smk.wildcards.dataset, ev["headline_m"],
              res["mAP_headline"])

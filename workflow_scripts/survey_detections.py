@@ -17,6 +17,8 @@ with job(snakemake, "survey_detections") as log:  # noqa: F821
     per_tile = {Path(p).stem: read_detections(p, smk.params.classes)["detections"] for p in smk.input.detections}
     stats = {Path(p).stem: json.loads(Path(p).read_text()) for p in smk.input.stats}
     dets, rows = merge_survey_detections(index, tiles, per_tile)
+    if not smk.params.all_hypotheses:  # accepted objects only, as `sonardet detect` writes by default
+        dets = [d for d in dets if (d.get("extras") or {}).get("accepted", True)]
     write_survey_detections(dets, smk.output.json, smk.output.csv, smk.output.geojson, survey=survey,
                             method=smk.params.method, source=smk.params.source, crs=index["crs"],
                             classes=smk.params.classes)

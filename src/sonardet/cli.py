@@ -181,6 +181,9 @@ def _run_detect(args) -> int:
         dets, rows = detect_tiled(xyz, detector, args.tile_m, args.overlap_m, progress=True, min_overlap_m=footprint)
         n_tiles = sum(not r["skipped"] for r in rows)
     t_detect = time.perf_counter() - t
+    n_all = len(dets)
+    if not args.all_hypotheses:  # boxes the method accepted as objects (a tail of rejected ones only on request)
+        dets = [d for d in dets if (d.get("extras") or {}).get("accepted", True)]
 
     # The detection file's scene id is the output file's stem: the project's reader
     # (io.annotations.read_detections) checks that id against the file name by default.
@@ -195,8 +198,9 @@ def _run_detect(args) -> int:
     if args.geojson is not None:
         write_detections_geojson(args.geojson, dets, crs=cloud.crs)
     n_acc = sum(bool(d.get("extras", {}).get("accepted", True)) for d in dets)
+    kept = "all hypotheses" if args.all_hypotheses else f"{n_all - len(dets)} rejected hypotheses left out"
     print(f"sonardet detect: {args.input.name}: {len(xyz)} points, {n_tiles} tile(s), {len(dets)} detection(s) "
-          f"({n_acc} accepted), {method.name}, {t_detect:.1f} s detection, {time.perf_counter() - t0:.1f} s "
+          f"({n_acc} accepted; {kept}), {method.name}, {t_detect:.1f} s detection, {time.perf_counter() - t0:.1f} s "
           f"total, coordinates in {cloud.crs or 'the input frame'} -> {args.out}")
     return 0
 
@@ -255,6 +259,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plugins", nargs="+", default=None,
                    help="plugin modules (.py files or module names) registering more methods or classes")
     p.add_argument("--threads", type=int, default=1, help="CPU threads of a learned method (default: 1)")
+    p.add_argument("--all-hypotheses", action="store_true",
+                   help="also write the hypotheses the method did not accept as objects (model-based `ours` "
+                        "keeps them at a low score, extras.accepted false); default: accepted objects only")
     p.add_argument("--params", default=None,
                    help="parameter overrides of the method: a JSON object or a .json file (model-based: keys of "
                         "sonardet.detect.model_based.DEFAULTS / PAPER; SASA: its inference keys)")

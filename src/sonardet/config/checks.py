@@ -128,6 +128,9 @@ def cross_checks(cfg: dict, validate) -> list[str]:
         out.append(f"evaluation.headline_m: {ev['headline_m']} is not one of evaluation.dist_thresholds_m "
                    f"{ev['dist_thresholds_m']}")
     out += methods.check(cfg)
+    names = [m.name for m in methods.configured(cfg)] if not out else []
+    if names and ev["reference"] not in names:
+        out.append(f"evaluation.reference: {ev['reference']!r} is not a configured method ({', '.join(names)})")
     if not out:
         out += _ablation_checks(cfg) + _survey_method_checks(cfg)
     out += validate(cfg)

@@ -60,8 +60,23 @@ def _check_settings(classes, dist_thresholds_m, headline_m, min_recall, min_prec
     return classes, ths
 
 
-def _prepare(gt: dict, dets: dict, classes):
-    """Validate in-memory inputs; split visible/invisible ground truth. Returns scenes, gt, dets, n_invisible."""
+#: The nuScenes devkit's limit of boxes per sample (`max_boxes_per_sample`).
+MAX_BOXES_PER_SCENE = 500
+
+
+def _cap(clean: list[dict], max_boxes: int | None) -> tuple[list[dict], int]:
+    """The `max_boxes` best-scored detections of a scene (all classes together), in their file order;
+    and how many were dropped. The devkit refuses a sample with more than 500 boxes; we keep the 500
+    a compliant submission would keep, so extra low-score boxes cannot buy recall."""
+    if max_boxes is None or len(clean) <= max_boxes:
+        return clean, 0
+    keep = np.sort(np.argsort([-d["score"] for d in clean], kind="stable")[:max_boxes])
+    return [clean[i] for i in keep], len(clean) - max_boxes
+
+
+def prepare(gt: dict, dets: dict, classes, max_boxes: int | None = MAX_BOXES_PER_SCENE):
+    """Validate in-memory inputs; split visible/invisible ground truth; cap the detections per scene.
+    Returns scenes, gt, dets, n_invisible, n_capped (detections dropped by the cap)."""
     scenes = sorted(gt)
     gt_visible, n_invisible = {}, {c: 0 for c in classes}
     for sid in scenes:
@@ -71,11 +86,11 @@ def _prepare(gt: dict, dets: dict, classes):
             cls = check_class(o.get("cls"), classes, src, f"objects[{i}].cls")
             box = check_box(o.get("box"), src, f"objects[{i}].box")
             if o.get("visible", True):
-                kept.append({"cls": cls, "box": box})
+                kept.append({"cls": cls, "box": box, "ignore": bool(o.get("ignore", False))})
             else:
                 n_invisible[cls] += 1
         gt_visible[sid] = kept
-    det_clean = {}
+    det_clean, n_capped = {}, 0
     for sid, items in dets.items():
         src = f"detections of scene {sid!r}"
         if sid not in gt:
@@ -90,8 +105,9 @@ def _prepare(gt: dict, dets: dict, classes):
                     or not math.isfinite(float(s)):
                 raise ValueError(f"{src}: detections[{i}].score: score must be a finite number, got {s!r}")
             clean.append({"cls": cls, "box": box, "score": float(s)})
-        det_clean[sid] = clean
-    return scenes, gt_visible, det_clean, n_invisible
+        det_clean[sid], dropped = _cap(clean, max_boxes)
+        n_capped += dropped
+    return scenes, gt_visible, det_clean, n_invisible, n_capped
 
 
 def _tp_errors(pooled, match, conf, min_recall, yaw_scored, yaw_period_rad):
@@ -137,20 +153,23 @@ def _evaluate_class(pooled, ths: list[float], headline_m: float, min_recall: flo
     AP and TP count per centre-distance threshold (m), TP errors at `headline_m`."""
     aps, n_tp, curves = {}, {}, {}
     tp_err = tp_plain = None
-    low_recall = False
+    low_recall, n_ignored = False, 0
     for th in ths:
         m = match_class(pooled, th)
-        rec, prec, conf = interpolated_pr(m.is_tp, m.scores, pooled.n_gt)
+        counted = ~m.is_ignored  # predictions on don't-care objects are neither TP nor FP
+        rec, prec, conf = interpolated_pr(m.is_tp[counted], m.scores[counted], pooled.n_gt)
         key = threshold_key(th)
         aps[key] = average_precision(prec, min_recall, min_precision)
         n_tp[key] = m.n_tp
         curves[key] = {"recall": rec, "precision": prec, "confidence": conf}
         if th == headline_m:
             tp_err, tp_plain, low_recall = _tp_errors(pooled, m, conf, min_recall, yaw_scored, yaw_period_rad)
+            n_ignored = int(m.is_ignored.sum())
     entry = {
         "AP": aps,
         "n_tp": n_tp,
         "n_pred": pooled.n_pred,
+        "n_pred_dont_care": n_ignored,
         "n_gt": pooled.n_gt,
         "n_gt_invisible": n_invisible,
         "yaw_period_rad": yaw_period_rad if yaw_scored else None,
@@ -166,13 +185,16 @@ def _evaluate_class(pooled, ths: list[float], headline_m: float, min_recall: flo
 
 
 def evaluate(gt: dict, dets: dict, classes, dist_thresholds_m, headline_m: float, symmetric_classes=(),
-             min_recall: float = 0.1, min_precision: float = 0.1, yaw_periods_rad: dict | None = None) -> dict:
+             min_recall: float = 0.1, min_precision: float = 0.1, yaw_periods_rad: dict | None = None,
+             max_boxes_per_scene: int | None = MAX_BOXES_PER_SCENE) -> dict:
     """Evaluate detections against ground truth, nuScenes style. Returns a dict (see below).
 
     gt: scene id -> list of ground-truth objects {cls, box [x,y,z,l,w,h,yaw] (m, rad), visible (default
-    True)}; objects with visible == False are removed before matching (and counted in n_gt_invisible).
-    dets: scene id -> list of detections {cls, box, score}; never filtered; a scene missing from `dets`
-    has no detections. classes: class names to evaluate (others are an error). dist_thresholds_m:
+    True), ignore (default False: a don't-care object, see sonardet.eval.matching)}; objects with
+    visible == False are removed before matching (and counted in n_gt_invisible).
+    dets: scene id -> list of detections {cls, box, score}; a scene missing from `dets` has no
+    detections; a scene with more than max_boxes_per_scene detections (the devkit's 500) keeps its
+    best-scored ones (n_pred_capped counts the others; None: no cap). classes: class names to evaluate (others are an error). dist_thresholds_m:
     centre-distance match thresholds (m), e.g. (0.5, 1, 2, 4); headline_m: the one used for the headline
     mAP and the TP errors. symmetric_classes: classes whose yaw is not scored (names not in `classes`
     are ignored). min_recall / min_precision: as in the devkit (0.1 each). yaw_periods_rad: class ->
@@ -198,7 +220,7 @@ def evaluate(gt: dict, dets: dict, classes, dist_thresholds_m, headline_m: float
     headline_m = float(headline_m)
     sym = [c for c in classes if c in set(symmetric_classes)]
     periods = _yaw_periods(classes, yaw_periods_rad)
-    scenes, gt_vis, det_clean, n_invisible = _prepare(gt, dets, classes)
+    scenes, gt_vis, det_clean, n_invisible, n_capped = prepare(gt, dets, classes, max_boxes_per_scene)
 
     per_class, pr_curves = {}, {}
     for cls in classes:
@@ -216,6 +238,8 @@ def evaluate(gt: dict, dets: dict, classes, dist_thresholds_m, headline_m: float
         "min_precision": float(min_precision),
         "symmetric_classes": sym,
         "n_scenes": len(scenes),
+        "max_boxes_per_scene": max_boxes_per_scene,
+        "n_pred_capped": int(n_capped),
         "mAP": m_ap,
         "mAP_headline": m_ap[threshold_key(headline_m)],
         "mAP_mean_over_thresholds": float(np.mean(list(m_ap.values()))),
@@ -307,7 +331,8 @@ def write_pr_curves(path, result: dict) -> None:
 def evaluate_files(scene_json_paths, detection_json_paths, out_metrics_json, out_per_class_csv, out_pr_curves,
                    classes, dist_thresholds_m, headline_m: float, symmetric_classes=(),
                    min_recall: float = 0.1, min_precision: float = 0.1, allow_missing_detections: bool = False,
-                   dataset: str | None = None, yaw_periods_rad: dict | None = None) -> dict:
+                   dataset: str | None = None, yaw_periods_rad: dict | None = None,
+                   max_boxes_per_scene: int | None = MAX_BOXES_PER_SCENE) -> dict:
     """Read scene and detection JSON files, evaluate (see `evaluate`) and write the three outputs.
 
     scene_json_paths: `results/scenes/{scene}.json` files (ground truth; invisible objects dropped);
@@ -342,7 +367,7 @@ def evaluate_files(scene_json_paths, detection_json_paths, out_metrics_json, out
                          f"{' ...' if len(missing) > 10 else ''}; every evaluated scene needs one (an empty "
                          "'detections' list when nothing was found)")
     result = evaluate(gt, dets, classes, dist_thresholds_m, headline_m, symmetric_classes, min_recall, min_precision,
-                      yaw_periods_rad)
+                      yaw_periods_rad, max_boxes_per_scene)
     metrics = metrics_for_json(result)
     metrics = {"schema_version": metrics.pop("schema_version"),
                "method": sorted(methods)[0] if len(methods) == 1 else sorted(methods),

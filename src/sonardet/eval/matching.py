@@ -8,6 +8,12 @@ argsort of -score). Each prediction in turn takes the nearest not-yet-taken grou
 its own scene by 2D centre distance (the first one in scene order on equal distances) and is a true
 positive only if that distance is strictly below the threshold (`distance < dist_th_m`); a prediction
 exactly at the threshold is a false positive.
+
+Don't-care objects (ground truth flagged `ignore`, e.g. objects in piles when a study leaves them
+out): they are not counted as ground truth, and a prediction that finds no free counted object within
+the threshold but lies within it of a don't-care object of its class is ignored, neither true nor
+false positive (like COCO's crowd regions: one don't-care object may absorb several predictions). The
+devkit has no such objects; without them the matching is the devkit's.
 """
 
 from __future__ import annotations
@@ -37,11 +43,15 @@ class PooledClass:
     pred_local: np.ndarray
     gt_boxes: list[np.ndarray]
     distances: list[np.ndarray] = field(repr=False)
+    #: Per scene, (G_s,) bool: the ground-truth object is don't-care (not counted; see module doc).
+    gt_ignore: list[np.ndarray] = field(default_factory=list, repr=False)
 
     @property
     def n_gt(self) -> int:
-        """Number of ground-truth objects of the class over all scenes."""
-        return int(sum(len(g) for g in self.gt_boxes))
+        """Number of counted (not don't-care) ground-truth objects of the class over all scenes."""
+        if not self.gt_ignore:
+            return int(sum(len(g) for g in self.gt_boxes))
+        return int(sum(int((~ig).sum()) for ig in self.gt_ignore))
 
     @property
     def n_pred(self) -> int:
@@ -66,6 +76,12 @@ class ClassMatch:
     is_tp: np.ndarray
     gt_scene: np.ndarray
     gt_index: np.ndarray
+    #: (N,) bool: matched a don't-care object only (neither TP nor FP); all False without them.
+    is_ignored: np.ndarray = None
+
+    def __post_init__(self):
+        if self.is_ignored is None:
+            self.is_ignored = np.zeros(len(self.is_tp), dtype=bool)
 
     @property
     def n_tp(self) -> int:
@@ -84,9 +100,11 @@ def pool_class(gt_by_scene: dict, dets_by_scene: dict, cls: str, scenes: list[st
     ones to evaluate; dets_by_scene[scene]: list of detections (dicts with `cls`, `box`, `score`). Scenes
     missing from either dict have no objects / no predictions.
     """
-    boxes, scores, scene_idx, local_idx, gts, dists = [], [], [], [], [], []
+    boxes, scores, scene_idx, local_idx, gts, dists, ignore = [], [], [], [], [], [], []
     for s, sid in enumerate(scenes):
-        g = _boxes([o for o in gt_by_scene.get(sid, ()) if o["cls"] == cls])
+        objs = [o for o in gt_by_scene.get(sid, ()) if o["cls"] == cls]
+        g = _boxes(objs)
+        ignore.append(np.array([bool(o.get("ignore", False)) for o in objs], dtype=bool))
         dets = [d for d in dets_by_scene.get(sid, ()) if d["cls"] == cls]
         p = _boxes(dets)
         gts.append(g)
@@ -104,6 +122,7 @@ def pool_class(gt_by_scene: dict, dets_by_scene: dict, cls: str, scenes: list[st
         pred_local=np.asarray(local_idx, dtype=np.int64),
         gt_boxes=gts,
         distances=dists,
+        gt_ignore=ignore,
     )
 
 
@@ -120,18 +139,24 @@ def match_class(pooled: PooledClass, dist_th_m: float) -> ClassMatch:
     is_tp = np.zeros(n, dtype=bool)
     gt_scene = np.full(n, -1, dtype=np.int64)
     gt_index = np.full(n, -1, dtype=np.int64)
-    taken = [np.zeros(len(g), dtype=bool) for g in pooled.gt_boxes]
+    is_ignored = np.zeros(n, dtype=bool)
+    ignore = pooled.gt_ignore or [np.zeros(len(g), dtype=bool) for g in pooled.gt_boxes]
+    # Don't-care objects are never free to take: they only absorb predictions that find nothing else.
+    taken = [ig.copy() for ig in ignore]
     for rank, k in enumerate(order):
         s = int(pooled.pred_scene[k])
         if len(taken[s]) == 0:
             continue
-        dist = np.where(taken[s], np.inf, pooled.distances[s][pooled.pred_local[k]])
+        row = pooled.distances[s][pooled.pred_local[k]]
+        dist = np.where(taken[s], np.inf, row)
         j = int(np.argmin(dist))  # first minimum in scene order, as the devkit's strict '<' scan
         if dist[j] < dist_th_m:
             taken[s][j] = True
             is_tp[rank] = True
             gt_scene[rank] = s
             gt_index[rank] = j
+        elif ignore[s].any() and np.min(np.where(ignore[s], row, np.inf)) < dist_th_m:
+            is_ignored[rank] = True
     return ClassMatch(
         cls=pooled.cls,
         dist_th_m=float(dist_th_m),
@@ -141,4 +166,5 @@ def match_class(pooled: PooledClass, dist_th_m: float) -> ClassMatch:
         is_tp=is_tp,
         gt_scene=gt_scene,
         gt_index=gt_index,
+        is_ignored=is_ignored,
     )

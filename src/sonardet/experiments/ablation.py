@@ -91,7 +91,8 @@ def _evaluate(gt: dict, dets: dict, classes, evaluation: dict, object_jsons) -> 
     periods = {m["cls"]: 2 * math.pi / m["symmetry_order"] for m in metas if m["symmetry_order"] > 1}
     res = evaluate(gt, dets, classes, evaluation["dist_thresholds_m"], evaluation["headline_m"],
                    symmetric_classes=symmetric, min_recall=evaluation["min_recall"],
-                   min_precision=evaluation["min_precision"], yaw_periods_rad=periods)
+                   min_precision=evaluation["min_precision"], yaw_periods_rad=periods,
+                   max_boxes_per_scene=evaluation.get("max_boxes_per_scene", 500))
     head = repr(float(evaluation["headline_m"]))
     return {"mAP": float(res["mAP_headline"]),
             "AP": {c: float(res["per_class"][c]["AP"][head]) for c in classes},

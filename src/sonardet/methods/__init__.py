@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from .base import RESOURCE_KINDS, RUNNERS, Detector, Method, MethodFamily, Resources
 from .model_based import ModelBased
-from .sasa import Sasa, SasaDomainRandomised
+from .sasa import Sasa, SasaDomainRandomised, SasaSeeds
 
 __all__ = ["RESOURCE_KINDS", "RUNNERS", "Detector", "Method", "MethodFamily", "Resources", "check", "configured",
            "families", "family", "get", "main_methods", "register", "variants"]
@@ -46,13 +46,14 @@ def configured(config: dict) -> list[Method]:
 
 
 def main_methods(config: dict) -> list[Method]:
-    """The configured methods compared in the main tables (all but variants of another method)."""
-    return [m for m in configured(config) if m.variant_of is None]
+    """The configured methods compared in the main tables (group 'main')."""
+    return [m for m in configured(config) if m.group == "main"]
 
 
-def variants(config: dict) -> list[Method]:
-    """The configured variants of other methods (e.g. SASA with domain randomisation)."""
-    return [m for m in configured(config) if m.variant_of is not None]
+def variants(config: dict, group: str | None = None) -> list[Method]:
+    """The configured variants of other methods (e.g. SASA with domain randomisation), all or those of
+    one report group."""
+    return [m for m in configured(config) if m.variant_of is not None and (group is None or m.group == group)]
 
 
 def get(name: str, config: dict) -> Method:
@@ -90,3 +91,4 @@ def check(config: dict) -> list[str]:
 register(ModelBased())
 register(Sasa())
 register(SasaDomainRandomised())
+register(SasaSeeds())

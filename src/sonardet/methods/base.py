@@ -39,9 +39,10 @@ class Method:
     its family. settings: the JSON-ready parameters its jobs need (a change reruns them). runner: one
     of RUNNERS. trained: whether it is trained (then `fraction`, in %, names the training split
     `train_{fraction}`). variant_of: for a variant of another method (e.g. SASA with domain
-    randomisation of 'sasa_100'), that method's name: the report pairs them instead of listing the
-    variant among the main methods. resources: what it needs (RESOURCE_KINDS). threads: CPU threads
-    of its jobs.
+    randomisation of 'sasa_100'), that method's name, which the report pairs it with. resources: what
+    it needs (RESOURCE_KINDS). threads: CPU threads of its jobs. group: the report table it belongs to
+    ('main': the comparison; others, e.g. 'domain_randomisation', 'ladder', 'seeds': their own
+    table). datasets: the evaluation datasets it runs on (None: all of them).
     """
 
     name: str
@@ -53,6 +54,8 @@ class Method:
     variant_of: str | None = None
     resources: tuple = ("objects", "templates")
     threads: int = 1
+    group: str = "main"
+    datasets: tuple | None = None
 
     def __post_init__(self):
         if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", self.name):
@@ -69,6 +72,7 @@ class Method:
         """JSON-ready form (what the workflow passes to its jobs)."""
         d = asdict(self)
         d["resources"] = list(self.resources)
+        d["datasets"] = None if self.datasets is None else list(self.datasets)
         return d
 
     @classmethod
@@ -76,14 +80,19 @@ class Method:
         """Inverse of :meth:`to_dict`."""
         d = dict(d)
         d["resources"] = tuple(d.get("resources", ()))
+        d["datasets"] = None if d.get("datasets") is None else tuple(d["datasets"])
         return cls(**d)
+
+    def runs_on(self, dataset: str) -> bool:
+        """Whether the method is run and evaluated on `dataset`."""
+        return self.datasets is None or dataset in self.datasets
 
     def with_settings(self, **changes) -> "Method":
         """A copy with other settings (deep-merged one level: dict values are updated, not replaced)."""
         s = copy.deepcopy(self.settings)
         for k, v in changes.items():
             s[k] = {**s[k], **v} if isinstance(s.get(k), dict) and isinstance(v, dict) else v
-        return Method(**{**asdict(self), "settings": s, "resources": self.resources})
+        return Method(**{**asdict(self), "settings": s, "resources": self.resources, "datasets": self.datasets})
 
 
 @dataclass

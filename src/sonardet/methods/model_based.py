@@ -27,11 +27,21 @@ class ModelBased(MethodFamily):
         return Method(name=f"{PREFIX}{variant}", family=self.name,
                       settings={"variant": variant, "params": dict(params or {})})
 
+    def _step(self, step: dict, config: dict) -> Method:
+        """A step of the improvement ladder: its base variant's settings with the step's overrides, run
+        on the synthetic test set only."""
+        params = {**config["model_based"][step["base"]], **step.get("params", {})}
+        return Method(name=f"{PREFIX}{step['name']}", family=self.name, group="ladder", datasets=("synthetic",),
+                      settings={"variant": step["base"], "params": params, "step": step["step"]})
+
     def methods(self, config: dict) -> list[Method]:
         mb = config["model_based"]
-        return [self._method(v, mb[v]) for v in mb["variants"]]
+        return [self._method(v, mb[v]) for v in mb["variants"]] + [self._step(s, config) for s in mb["ladder"]]
 
     def parse(self, name: str, config: dict) -> Method | None:
+        for step in config["model_based"]["ladder"]:
+            if name == f"{PREFIX}{step['name']}":
+                return self._step(step, config)
         m = re.fullmatch(rf"{PREFIX}(\w+)", name)
         if not m or m.group(1) not in VARIANTS:
             return None
@@ -44,6 +54,16 @@ class ModelBased(MethodFamily):
                 resolve_params(config["model_based"][variant], variant)
             except (ValueError, TypeError) as exc:
                 out.append(f"model_based.{variant}: {exc}")
+        names = list(VARIANTS)
+        for i, step in enumerate(config["model_based"]["ladder"]):
+            where = f"model_based.ladder[{i}] ({step['name']})"
+            if step["name"] in names:
+                out.append(f"{where}.name: {step['name']!r} is already a variant or step")
+            names.append(step["name"])
+            try:
+                resolve_params(self._step(step, config).settings["params"], step["base"])
+            except (ValueError, TypeError) as exc:
+                out.append(f"{where}.params: {exc}")
         return out
 
     def check_params(self, method: Method) -> None:

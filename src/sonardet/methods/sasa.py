@@ -8,8 +8,9 @@ import logging
 import re
 import sys
 
-from ..detect.sasa.config import DEFAULTS, INFERENCE_KEYS, PAPER, resolve_params
+from ..detect.sasa.config import INFERENCE_KEYS, PRESETS, resolve_params
 from ..objects import classes as class_registry
+from ..seeds import derive_seed
 from .base import Method, MethodFamily, Resources
 
 log = logging.getLogger("sonardet.methods.sasa")
@@ -17,7 +18,7 @@ log = logging.getLogger("sonardet.methods.sasa")
 
 def preset(name: str) -> dict:
     """The parameter preset of `sasa.preset`."""
-    return PAPER if name == "paper" else DEFAULTS
+    return PRESETS[name]
 
 
 def resolved_params(method: Method, threads: int | None = None) -> dict:
@@ -39,6 +40,7 @@ class Sasa(MethodFamily):
     name = "sasa"
     label = "SASA"
     prefix = "sasa_"
+    group = "main"
     styles = {
         "sasa_25": {"color": "#56B4E9", "linestyle": "-.", "marker": "v"},
         "sasa_50": {"color": "#009E73", "linestyle": "-.", "marker": "^"},
@@ -63,7 +65,7 @@ class Sasa(MethodFamily):
         return Method(name=f"{self.prefix}{fraction}", family=self.name, settings=self.settings(config),
                       runner="per_dataset", trained=True, fraction=int(fraction),
                       variant_of=self.variant_of(fraction), resources=("model",),
-                      threads=int(config["sasa"]["threads"]))
+                      threads=int(config["sasa"]["threads"]), group=self.group)
 
     def methods(self, config: dict) -> list[Method]:
         if not self.enabled(config):
@@ -131,12 +133,43 @@ class Sasa(MethodFamily):
             return train(list(train_paths), list(val_paths), params, out_dir, device=device, resume=False)
 
 
+class SasaSeeds(Sasa):
+    """The largest training fraction trained again with other seeds (`sasa.seeds` in all, the first
+    being the main model): `sasa_{fraction}_seed{k}`, k = 1 .. seeds - 1, reported as mean and spread."""
+
+    name = "sasa_seed"
+    label = "SASA"
+    prefix = "sasa_seed"
+    group = "seeds"
+    styles = {}
+
+    def fractions(self, config: dict) -> list[int]:
+        return [max(int(f) for f in config["split"]["fractions"])]
+
+    def methods(self, config: dict) -> list[Method]:
+        if not self.enabled(config):
+            return []
+        f = self.fractions(config)[0]
+        return [self._seeded(f, k, config) for k in range(1, int(config["sasa"]["seeds"]))]
+
+    def _seeded(self, fraction: int, k: int, config: dict) -> Method:
+        m = self._method(fraction, config)
+        settings = {**m.settings, "seed": derive_seed(config["seed"], "sasa seed", k) % 2**31}
+        return Method(**{**m.to_dict(), "name": f"sasa_{fraction}_seed{k}", "settings": settings,
+                         "variant_of": f"sasa_{fraction}", "resources": ("model",), "datasets": ("synthetic",)})
+
+    def parse(self, name: str, config: dict) -> Method | None:
+        m = re.fullmatch(r"sasa_(\d+)_seed(\d+)", name)
+        return self._seeded(int(m.group(1)), int(m.group(2)), config) if m else None
+
+
 class SasaDomainRandomised(Sasa):
     """SASA trained with randomised sensor effects (`dr_*` keys), a variant of `sasa_{fraction}`."""
 
     name = "sasa_dr"
     label = "SASA"
     prefix = "sasa_dr_"
+    group = "domain_randomisation"
     styles = {}
 
     def enabled(self, config: dict) -> bool:

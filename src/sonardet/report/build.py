@@ -31,14 +31,19 @@ from .figures import (
     plot_pr_curves,
     plot_topview,
 )
+from .inputs import read_json
 from .study import STUDY_REAL_SONAR, STUDY_SOURCE
 from .summary import machine_info, write_results_readme
 from .tables import (
     comparison_table,
     dataset_table,
+    differences_table,
     domain_randomisation_table,
     fraction_table,
+    ladder_table,
     realism_ablation_table,
+    scoring_table,
+    seeds_table,
     timing_table,
     write_table,
 )
@@ -88,15 +93,53 @@ def _timing(man: dict) -> pd.DataFrame:
                         simulation_benchmarks=man["scene_benchmarks"], scene_jsons=list(man["scenes"].values()))
 
 
+def _intervals(man: dict, dataset: str) -> dict:
+    """method -> (low, high) bootstrap interval of its mAP on a dataset (all boxes)."""
+    rows = read_json(man["compare"][dataset])["scorings"]["all"]
+    return {m: (r["low"], r["high"]) for m, r in rows.items()}
+
+
+def _budgets(man: dict) -> dict:
+    """Trained method -> its train.json (the budget columns of the comparison tables)."""
+    return {m["name"]: man["train"][m["name"]]["summary"] for m in man["methods"] if m["trained"]}
+
+
+def _seconds(stats_files) -> list[float]:
+    return [float(read_json(p)["seconds"]["total"]) for p in stats_files]
+
+
+def _ladder(man: dict) -> pd.DataFrame:
+    """paper (the study's ranking) -> each configured step -> ours, accepted objects only -> ours."""
+    names = [m["name"] for m in man["methods"]]
+    steps = []
+    if "model_based_paper" in names:
+        steps.append({"method": "model_based_paper", "step": "the study's pipeline (RMSE ranking)", "scoring": "all",
+                      "seconds": _seconds(man["timing"]["model_based_paper"])})
+    steps += [{"method": st["name"], "step": st["step"], "scoring": "all", "seconds": _seconds(st["timing"])}
+              for st in man["ladder"]]
+    if "model_based_ours" in names:
+        secs = _seconds(man["timing"]["model_based_ours"])
+        steps.append({"method": "model_based_ours", "step": "ours: terrain-following seabed, proposals, robust ICP, "
+                      "two-way scores, explain-away (accepted objects only)", "scoring": "accepted", "seconds": secs})
+        steps.append({"method": "model_based_ours", "step": "+ low-score tail of rejected hypotheses",
+                      "scoring": "all", "seconds": secs})
+    return ladder_table(steps, man["compare"]["synthetic"])
+
+
 def build_tables(man: dict) -> dict[str, pd.DataFrame]:
     """Every table the manifest asks for (`tables`), by name."""
     want, classes = man["tables"], man["classes"]
     tables = {"dataset": dataset_table(man["dataset_table"]),
-              "comparison": comparison_table(_metrics_on(man, "synthetic"), classes)}
+              "comparison": comparison_table(_metrics_on(man, "synthetic"), classes,
+                                             intervals=_intervals(man, "synthetic"), budgets=_budgets(man))}
     for dataset in ("realism", "hybrid"):
         if f"comparison_{dataset}" in want:
             tables[f"comparison_{dataset}"] = _with_real_sonar(
-                comparison_table(_metrics_on(man, dataset), classes, study=False))
+                comparison_table(_metrics_on(man, dataset), classes, study=False,
+                                 intervals=_intervals(man, dataset), budgets=_budgets(man)))
+    tables["differences"] = differences_table({d: man["compare"][d] for d in man["datasets"]})
+    tables["ladder"] = _ladder(man)
+    tables["dont_care"] = scoring_table(man["compare"]["synthetic"], [m["name"] for m in man["methods"]])
     if "realism_ablation" in want:
         tables["realism_ablation"] = realism_ablation_table(man["realism_ablation"])
     if "domain_randomisation" in want:
@@ -110,6 +153,12 @@ def build_tables(man: dict) -> dict[str, pd.DataFrame]:
         tables["ablation"] = _ablation_table(man["ablation"])
     if "noise" in want:
         tables["noise"] = _noise_table(man["noise"])
+    if "seeds" in want:
+        groups = {}
+        for variant, main in man["seeds"].items():
+            groups.setdefault(main, {main: man["metrics"][main]["synthetic"]})[variant] = \
+                man["metrics"][variant]["synthetic"]
+        tables["seeds"] = seeds_table(groups)
     return {k: v for k, v in tables.items() if k in want}
 
 

@@ -84,7 +84,7 @@ def plot_pr_curves(pr_files: dict, classes, out_png, threshold: float = 0.5) -> 
 
 
 def plot_loss_curves(loss_csvs: dict, out_png) -> Path:
-    """Training loss per epoch of SASA at each data fraction (left) and the validation mAP where
+    """Training loss per epoch of SASA at each data fraction (left) and the development-set mAP where
     `loss.csv` has a `val_mAP` column (right). loss_csvs: fraction (25, '25' or 'sasa_25') ->
     `models/sasa_{f}/loss.csv` path or DataFrame with columns epoch, loss, ... Returns out_png."""
     frames = {}
@@ -117,9 +117,9 @@ def plot_loss_curves(loss_csvs: dict, out_png) -> Path:
     axes[0].legend(fontsize=8)
     if has_val:
         axes[1].set_xlabel("epoch")
-        axes[1].set_ylabel("validation mAP (headline threshold)")
+        axes[1].set_ylabel("dev mAP (headline threshold)")
         axes[1].set_ylim(0, 1.02)
-        axes[1].set_title("SASA validation mAP")
+        axes[1].set_title("SASA mAP on the development scenes")
         axes[1].grid(alpha=0.3)
         axes[1].legend(fontsize=8)
     return write_figure(fig, out_png)

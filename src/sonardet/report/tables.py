@@ -140,13 +140,20 @@ def _mAP_col(headline_m: float) -> str:
     return f"mAP@{threshold_key(headline_m)}m"
 
 
-def comparison_table(metrics: dict, classes=None, study: bool = True) -> pd.DataFrame:
+#: Columns of a trained method's budget (train.json), in comparison tables.
+BUDGET_COLUMNS = ("epochs", "steps", "n_points", "n_parameters", "device", "train_s")
+
+
+def comparison_table(metrics: dict, classes=None, study: bool = True, intervals: dict | None = None,
+                     budgets: dict | None = None) -> pd.DataFrame:
     """One row per method (insertion order of `metrics`: method -> metrics.json path or dict).
 
-    Columns: method, source ('this run' or 'source study'), mAP@{headline}m, predictions (all classes),
-    ground truth (visible objects, all classes), `AP@{headline}m {cls}` for each class (default: the
-    first metrics' classes), then mAP at every other threshold. With study=True the source study's rows
-    follow ('SASA (study)', 'model-based (study)'; only mAP and predictions are known).
+    Columns: method, source ('this run' or 'source study'), mAP@{headline}m, map_low and map_high (the
+    bootstrap interval, from `intervals`: method -> (low, high); empty without), predictions (all
+    classes), ground truth (visible objects, all classes), `AP@{headline}m {cls}` for each class
+    (default: the first metrics' classes), mAP at every other threshold, then a trained method's budget
+    (`budgets`: method -> train.json path or dict): epochs, steps, n_points, n_parameters, device,
+    train_s. With study=True the source study's rows follow (mAP, predictions, per-class AP).
     """
     loaded = {k: read_metrics(v) for k, v in metrics.items()}
     first = next(iter(loaded.values()), None)
@@ -155,28 +162,94 @@ def comparison_table(metrics: dict, classes=None, study: bool = True) -> pd.Data
         classes = list(first["classes"]) if first else []
     hk = threshold_key(headline)
     other = [t for t in (first["dist_thresholds_m"] if first else []) if float(t) != float(headline)]
-    cols = (["method", "source", _mAP_col(headline), "predictions", "ground truth"]
-            + [f"AP@{hk}m {c}" for c in classes] + [f"mAP@{threshold_key(t)}m" for t in other])
-    rows = []
-    for method, m in loaded.items():
-        if float(m["headline_m"]) != float(headline):
-            raise ValueError(f"metrics of {method!r} use headline threshold {m['headline_m']} m, the first "
-                             f"ones {headline} m; evaluate every method with the same settings")
-        pc = m["per_class"]
-        row = {"method": method, "source": THIS_RUN, _mAP_col(headline): m["mAP_headline"],
-               "predictions": sum(int(v["n_pred"]) for v in pc.values()),
-               "ground truth": sum(int(v["n_gt"]) for v in pc.values())}
-        for c in classes:
-            row[f"AP@{hk}m {c}"] = pc[c]["AP"][hk] if c in pc else np.nan
-        for t in other:
-            row[f"mAP@{threshold_key(t)}m"] = m["mAP"].get(threshold_key(t), np.nan)
-        rows.append(row)
+    cols = (["method", "source", _mAP_col(headline), "map_low", "map_high", "predictions", "ground truth"]
+            + [f"AP@{hk}m {c}" for c in classes] + [f"mAP@{threshold_key(t)}m" for t in other]
+            + (list(BUDGET_COLUMNS) if budgets else []))
+    rows = [_comparison_row(method, m, headline, classes, other, (intervals or {}).get(method),
+                            (budgets or {}).get(method)) for method, m in loaded.items()]
     if study:
         for name, fig in STUDY["comparison"].items():
             rows.append({"method": name, "source": STUDY_SOURCE, _mAP_col(headline): fig["mAP"],
-                         "predictions": fig["predictions"]})
+                         "predictions": fig["predictions"],
+                         **{f"AP@{hk}m {c}": v for c, v in fig.get("AP", {}).items() if c in classes}})
     df = pd.DataFrame(rows, columns=cols)
-    return _counts_as_int(df, ["predictions", "ground truth"])
+    return _counts_as_int(df, ["predictions", "ground truth"] + (["epochs", "steps", "n_points", "n_parameters"]
+                                                                  if budgets else []))
+
+
+def _comparison_row(method: str, m: dict, headline: float, classes, other, interval, budget) -> dict:
+    if float(m["headline_m"]) != float(headline):
+        raise ValueError(f"metrics of {method!r} use headline threshold {m['headline_m']} m, the first "
+                         f"ones {headline} m; evaluate every method with the same settings")
+    hk = threshold_key(headline)
+    pc = m["per_class"]
+    row = {"method": method, "source": THIS_RUN, _mAP_col(headline): m["mAP_headline"],
+           "predictions": sum(int(v["n_pred"]) for v in pc.values()),
+           "ground truth": sum(int(v["n_gt"]) for v in pc.values())}
+    if interval is not None:
+        row["map_low"], row["map_high"] = float(interval[0]), float(interval[1])
+    for c in classes:
+        row[f"AP@{hk}m {c}"] = pc[c]["AP"][hk] if c in pc else np.nan
+    for t in other:
+        row[f"mAP@{threshold_key(t)}m"] = m["mAP"].get(threshold_key(t), np.nan)
+    if budget is not None:
+        b = read_json(budget)
+        row.update(epochs=b.get("epochs"), steps=b.get("steps"),
+                   n_points=b.get("n_points", (b.get("params") or {}).get("n_points")),
+                   n_parameters=b.get("n_parameters"), device=b.get("device"), train_s=b.get("train_time_s"))
+    return row
+
+
+def differences_table(compares: dict, scoring: str = "all") -> pd.DataFrame:
+    """Paired bootstrap differences to the reference method on each dataset (compare/{dataset}.json,
+    path or dict, by dataset): one row per (dataset, method): its mAP, the reference's, the difference
+    and its interval, and whether the interval excludes 0 (a ranking the data support)."""
+    rows = []
+    for dataset, src in compares.items():
+        c = read_json(src)
+        ref = c["reference"]
+        for method, r in c["scorings"][scoring].items():
+            if "diff" not in r:
+                continue
+            d = r["diff"]
+            rows.append({"test set": dataset, "method": method, "mAP": r["mAP"], "vs": ref,
+                         "mAP vs": c["scorings"][scoring][ref]["mAP"], "difference": d["mAP"],
+                         "difference low": d["low"], "difference high": d["high"],
+                         "resolved": bool(d["low"] > 0 or d["high"] < 0), "scenes": c["n_scenes"]})
+    return pd.DataFrame(rows, columns=["test set", "method", "mAP", "vs", "mAP vs", "difference", "difference low",
+                                       "difference high", "resolved", "scenes"])
+
+
+def scoring_table(compare, methods, scorings=("all", "accepted", "dont_care")) -> pd.DataFrame:
+    """One row per method: its mAP and bootstrap interval under each scoring of a compare JSON (all
+    boxes; accepted boxes only; don't-care objects ignored)."""
+    c = read_json(compare)
+    rows = []
+    for m in methods:
+        row = {"method": m}
+        for s in scorings:
+            r = c["scorings"].get(s, {}).get(m)
+            if r is not None:
+                row.update({f"mAP {s}": r["mAP"], f"low {s}": r["low"], f"high {s}": r["high"]})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def ladder_table(steps: list[dict], compare) -> pd.DataFrame:
+    """The improvement ladder: steps [{method, step (what it adds), scoring ('all' or 'accepted'),
+    seconds (s/scene list)}] in order, each with its mAP and bootstrap interval (compare JSON of the
+    synthetic test set), the change against the step before and its s/scene."""
+    c = read_json(compare)
+    rows, prev = [], None
+    for st in steps:
+        r = c["scorings"][st["scoring"]][st["method"]]
+        secs = st.get("seconds") or []
+        rows.append({"step": st["step"], "method": st["method"], "boxes": st["scoring"], "mAP@0.5m": r["mAP"],
+                     "map_low": r["low"], "map_high": r["high"],
+                     "change": np.nan if prev is None else r["mAP"] - prev,
+                     "s/scene": float(np.mean(secs)) if len(secs) else np.nan})
+        prev = r["mAP"]
+    return pd.DataFrame(rows)
 
 
 def realism_ablation_table(rows, headline_m: float = 0.5) -> pd.DataFrame:
@@ -347,3 +420,17 @@ def dataset_table(stats_csv) -> pd.DataFrame:
     out["scenes (study)"] = [sd["scenes"].get(s) for s in out["split"]]
     out["objects (study)"] = [sd["objects"].get(s) for s in out["split"]]
     return _counts_as_int(out, ["scenes", "objects", "not visible", "scenes (study)", "objects (study)"])
+
+
+def seeds_table(groups: dict) -> pd.DataFrame:
+    """A trained method at several seeds (groups: main method -> {method: metrics.json path or dict},
+    the main one first): one row per group with the mAP of each seed, their mean, standard deviation
+    (ddof 1), minimum and maximum."""
+    rows = []
+    for main, metrics in groups.items():
+        maps = [read_metrics(m)["mAP_headline"] for m in metrics.values()]
+        rows.append({"method": main, "seeds": len(maps), "mAP mean": float(np.mean(maps)),
+                     "mAP std": float(np.std(maps, ddof=1)) if len(maps) > 1 else np.nan,
+                     "mAP min": float(np.min(maps)), "mAP max": float(np.max(maps)),
+                     "mAP per seed": ", ".join(f"{v:.3f}" for v in maps)})
+    return pd.DataFrame(rows)

@@ -3,14 +3,14 @@
 Layout as OpenPCDet: :mod:`.backbone` (PointNet++ SA layers with D-FPS / S-FPS), :mod:`.head` (3DSSD
 vote head), :mod:`.box_coder` (symmetry-aware bin/residual coder), :mod:`.losses`, :mod:`.model` (the
 detector, post-processing), :mod:`.data` (ground filter, sampling, augmentation), :mod:`.config`
-(``DEFAULTS`` / ``PAPER`` hyper-parameters), :mod:`.trainer` (``train``, ``TrainedSASA`` (a saved model
+(``DEFAULTS`` / ``STUDY`` hyper-parameters), :mod:`.trainer` (``train``, ``TrainedSASA`` (a saved model
 loaded once, called per point cloud), ``infer``), :mod:`.ops` (point
 operators). Reference: blakechen97/SASA. The network modules (torch) are imported on first use.
 """
 
-from .config import DEFAULTS, PAPER, resolve_params
+from .config import DEFAULTS, PRESETS, STUDY, resolve_params
 
-__all__ = ["DEFAULTS", "PAPER", "resolve_params", "SASADetector", "TrainedSASA", "train", "infer", "detect_points",
+__all__ = ["DEFAULTS", "PRESETS", "STUDY", "resolve_params", "SASADetector", "TrainedSASA", "train", "infer", "detect_points",
            "read_model", "ConfigMismatchError"]
 
 _LAZY = {"SASADetector": "model", "TrainedSASA": "trainer", "train": "trainer", "infer": "trainer",

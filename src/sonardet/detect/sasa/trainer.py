@@ -113,6 +113,8 @@ def _make_batch(scenes: list[PreparedScene], params: dict, rng: np.random.Genera
             xyz, h, lab, boxes, axis = d.xyz, d.height, d.label, d.boxes, d.axis
         if train_aug:
             xyz, h, boxes = augment(xyz, h, lab, boxes, s.cls, s.obj_id, params, rng, axis)
+        if params["point_feature"] == "none":  # the study's input: coordinates only (no intensity simulated)
+            h = np.zeros_like(h)
         items.append((xyz, h, boxes, s.cls))
     return collate(items, device)
 
@@ -333,12 +335,19 @@ def detect_points(model_path, xyz: np.ndarray, params: dict | None = None, devic
 
 @dataclass
 class _Progress:
-    """Where a training run stands: next epoch, per-epoch rows, training seconds and steps so far."""
+    """Where a training run stands: next epoch, per-epoch rows, training seconds and steps so far; the
+    best development evaluation so far (epoch, mAP, weights) and evaluations since it improved; the
+    epoch training stopped at when early stopping ended it."""
 
     epoch: int = 0
     history: list = field(default_factory=list)
     train_s: float = 0.0
     steps: int = 0
+    best_epoch: int | None = None
+    best_map: float | None = None
+    best_state: dict | None = None
+    bad_evals: int = 0
+    stopped_epoch: int | None = None
 
 
 def _checkpoint_to_resume(ckpt_path: Path, settings: dict, resume: bool) -> dict | None:
@@ -386,7 +395,10 @@ def _restore(ckpt: dict | None, model, opt, sched) -> _Progress:
     model.load_state_dict(ckpt["state_dict"])
     opt.load_state_dict(ckpt["optimizer"])
     sched.load_state_dict(ckpt["scheduler"])
-    return _Progress(int(ckpt["epoch"]), list(ckpt["history"]), float(ckpt["train_s"]), int(ckpt["steps"]))
+    best = ckpt.get("best") or {}
+    return _Progress(int(ckpt["epoch"]), list(ckpt["history"]), float(ckpt["train_s"]), int(ckpt["steps"]),
+                     best.get("epoch"), best.get("mAP"), best.get("state_dict"), int(best.get("bad_evals", 0)),
+                     ckpt.get("stopped_epoch"))
 
 
 def _train_epoch(model, opt, sched, scenes: list, params: dict, epoch: int, device, bar) -> dict:
@@ -425,7 +437,7 @@ def _validate(model, val_scenes: list, val_paths: list[str], params: dict, devic
 
 
 def _training_summary(params: dict, device, scenes: list, val_scenes: list, train_ids: list[str],
-                      run: _Progress, prep_s: float, val_s: float | None, val: dict | None) -> dict:
+                      run: _Progress, prep_s: float, val_s: float | None, val: dict | None, n_parameters: int) -> dict:
     """The summary written to train.json (times in s, memory in MB)."""
     n_kept = [len(s.xyz) for s in scenes]
     return {
@@ -436,8 +448,13 @@ def _training_summary(params: dict, device, scenes: list, val_scenes: list, trai
         "n_train_scenes": len(scenes),
         "n_val_scenes": len(val_scenes),
         "train_scenes": train_ids,
-        "epochs": int(params["epochs"]),
+        "epochs": len(run.history),
+        "epochs_cap": int(params["epochs"]),
+        "best_epoch": run.best_epoch,
+        "stopped_early": run.stopped_epoch is not None,
         "batch_size": int(params["batch_size"]),
+        "n_points": int(params["n_points"]),
+        "n_parameters": int(n_parameters),
         "steps": run.steps,
         "train_time_s": run.train_s,
         "s_per_step": run.train_s / max(run.steps, 1),
@@ -461,10 +478,42 @@ def _progress_bar(params: dict, total_steps: int, done_steps: int, n_scenes: int
                 disable=not params["progress"])
 
 
+def _evaluate_epoch(model, val_scenes, val_paths, params: dict, device, run: _Progress, row: dict,
+                    epochs: int) -> None:
+    """Every `val_every_epochs` epochs (and after the last): the dev mAP into `row`, the best model
+    kept, and early stopping decided (`early_stop_patience` evaluations without a dev mAP better by
+    `early_stop_min_delta`)."""
+    every = int(params.get("val_every_epochs") or 0)
+    epoch = int(row["epoch"])
+    if not (val_scenes and every and (epoch % every == 0 or epoch == epochs)):
+        return
+    m = _validate(model, val_scenes, val_paths, params, device)["mAP_headline"]
+    row["val_mAP"] = m
+    if run.best_map is None or m > run.best_map + float(params["early_stop_min_delta"]):
+        run.best_epoch, run.best_map, run.bad_evals = epoch, float(m), 0
+        run.best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    else:
+        run.bad_evals += 1
+        patience = int(params.get("early_stop_patience") or 0)
+        if patience and run.bad_evals >= patience and epoch < epochs:
+            run.stopped_epoch = epoch
+
+
+def _checkpoint(settings: dict, params: dict, model, opt, sched, epoch: int, run: _Progress) -> dict:
+    """The resumable checkpoint after `epoch` (weights, optimiser, schedule, history, best so far)."""
+    return {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "settings": settings, "params": params,
+            "state_dict": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+            "epoch": epoch, "history": run.history, "train_s": run.train_s, "steps": run.steps,
+            "best": {"epoch": run.best_epoch, "mAP": run.best_map, "state_dict": run.best_state,
+                     "bad_evals": run.bad_evals},
+            "stopped_epoch": run.stopped_epoch}
+
+
 def _final_validation(model, val_scenes: list, val_paths: list[str], params: dict, device, run: _Progress,
                       out_dir: Path):
-    """Validation after the last epoch: (metrics for train.json, inference seconds per scene), both None
-    without validation scenes; the last loss.csv row gets the validation mAP."""
+    """Validation of the kept model (the best on the dev scenes, else the last epoch's): (metrics for
+    train.json, inference seconds per scene), both None without validation scenes. Without periodic
+    evaluations the last loss.csv row gets the validation mAP."""
     if not val_scenes:
         return None, None
     t0 = time.perf_counter()
@@ -472,7 +521,7 @@ def _final_validation(model, val_scenes: list, val_paths: list[str], params: dic
     val_s = (time.perf_counter() - t0) / len(val_scenes)
     val = {"mAP_headline": m["mAP_headline"], "mAP": m["mAP"],
            "AP_headline": {c: m["per_class"][c]["AP"][repr(0.5)] for c in params["classes"]}}
-    if run.history:
+    if run.history and "val_mAP" not in run.history[-1] and run.best_epoch is None:
         run.history[-1]["val_mAP"] = m["mAP_headline"]
         atomic_write_text(out_dir / "loss.csv", _csv_text(run.history))
     return val, val_s
@@ -516,8 +565,9 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
     if ckpt is not None:
         log.info("resuming %s at epoch %d/%d", ckpt_path, run.epoch, epochs)
     bar = _progress_bar(params, steps_per_epoch * epochs, run.epoch * steps_per_epoch, len(scenes))
-    val_every = int(params.get("val_every_epochs") or 0)
     for epoch in range(run.epoch, epochs):
+        if run.stopped_epoch is not None:  # resumed after early stopping
+            break
         t_ep = time.perf_counter()
         sums = _train_epoch(model, opt, sched, scenes, params, epoch, device, bar)
         run.steps += steps_per_epoch
@@ -525,19 +575,23 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
         run.train_s += ep_s
         row = {"epoch": epoch + 1, **{k: v / steps_per_epoch for k, v in sums.items()},
                "lr": sched.get_last_lr()[0], "epoch_s": ep_s}
-        if val_every and val_scenes and ((epoch + 1) % val_every == 0) and epoch + 1 < epochs:
-            row["val_mAP"] = _validate(model, val_scenes, val_paths, params, device)["mAP_headline"]
+        _evaluate_epoch(model, val_scenes, val_paths, params, device, run, row, epochs)
         run.history.append(row)
         log.info("epoch %d/%d: loss %.4f, %.1f s (%.2f s/step)%s", epoch + 1, epochs, row.get("loss", float("nan")),
-                 ep_s, ep_s / steps_per_epoch, f", val mAP {row['val_mAP']:.3f}" if "val_mAP" in row else "")
+                 ep_s, ep_s / steps_per_epoch, f", dev mAP {row['val_mAP']:.3f}" if "val_mAP" in row else "")
         atomic_write_text(out_dir / "loss.csv", _csv_text(run.history))
-        _save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "settings": settings, "params": params,
-               "state_dict": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-               "epoch": epoch + 1, "history": run.history, "train_s": run.train_s, "steps": run.steps}, ckpt_path)
+        _save(_checkpoint(settings, params, model, opt, sched, epoch + 1, run), ckpt_path)
+        if run.stopped_epoch is not None:
+            log.info("early stop after epoch %d: no dev mAP better than %.4f (epoch %d) in %d evaluations",
+                     epoch + 1, run.best_map, run.best_epoch, run.bad_evals)
+            break
+    if run.best_state is not None:  # the model chosen on the development scenes
+        model.load_state_dict(run.best_state)
     if bar is not None:
         bar.close()
     val, val_s = _final_validation(model, val_scenes, val_paths, params, device, run, out_dir)
-    summary = _training_summary(params, device, scenes, val_scenes, train_ids, run, prep_s, val_s, val)
+    summary = _training_summary(params, device, scenes, val_scenes, train_ids, run, prep_s, val_s, val,
+                                sum(p.numel() for p in model.parameters()))
     _save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "settings": settings, "params": params,
            "state_dict": model.state_dict(), "classes": list(params["classes"]), "summary": summary},
           out_dir / "model.pt")
