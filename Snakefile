@@ -24,3 +24,4 @@ rule all:
     input:
         final_outputs(),
         SURVEY_OUTPUTS,
+        "results/report/timeline.json",

@@ -43,6 +43,28 @@ SPLIT = make_splits(
     config["split"]["fractions"],
     config["seed"],
 )
+
+
+def _scene_priority():
+    """Priority classes of the scene simulations: the training and dev scenes (the trainings' inputs)
+    before any other job, so the longest chain of the DAG (scenes -> training -> inference ->
+    evaluation -> report) starts as early as it can; the other scenes at the configured priority.
+    """
+    first = sorted(set(SPLIT["train"]) | set(SPLIT["dev"]))
+    rest = [s for s in SCENES if s not in set(first)]
+    top = max(config["workflow"]["priorities"].values()) + 100
+    out = {"train": (top, first)}
+    if rest:
+        out["other"] = (config["workflow"]["priorities"]["simulate"], rest)
+    return out
+
+
+def train_priority(method):
+    """A training job's priority: the configured one plus a tenth of its training fraction, so the
+    largest (longest) trainings start first."""
+    return PRIORITY["train"] + int(METHOD[method].fraction or 0) // 10
+
+
 #: Evaluation datasets: name -> scene ids, and the folder holding their scene files. The test sets
 #: (synthetic, realism, hybrid) are read only by the final detection and evaluation of each method;
 #: their development counterparts (dev, realism_dev) serve every choice and the ablations.
@@ -66,6 +88,8 @@ if config["hybrid_test"]["enabled"] and not HYBRID:
 if HYBRID:
     DATASETS["hybrid"] = scene_ids(config["hybrid_test"]["n_scenes"])
     DATASET_DIRS["hybrid"] = "results/hybrid/scenes"
+
+SCENE_PRIORITY = _scene_priority()
 
 #: Methods, from the library's registry: name -> Method (family, settings, runner, training).
 METHOD = {m.name: m for m in method_registry.configured(config)}
@@ -334,9 +358,9 @@ def detect_scene_inputs(wildcards):
     }
 
 
-def train_inputs(wildcards):
-    """The training fraction's scenes and the validation scenes."""
-    fraction = METHOD[wildcards.method].fraction
+def train_inputs(method):
+    """A trained method's training-fraction scenes and the dev scenes (its checkpoint choice)."""
+    fraction = METHOD[method].fraction
     return {
         "train": split_scene_files(f"train_{fraction}", "npz"),
         "train_labels": split_scene_files(f"train_{fraction}", "json"),

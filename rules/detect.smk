@@ -65,27 +65,29 @@ for _dataset in DATASETS:
             "../workflow_scripts/detect_dataset.py"
 
 
-rule train:
-    input:
-        unpack(train_inputs),
-    output:
-        model="results/models/{method}/model.pt",
-        loss="results/models/{method}/loss.csv",
-        summary="results/models/{method}/train.json",
-    log:
-        "results/logs/train/{method}.log",
-    benchmark:
-        "results/benchmarks/train/{method}.tsv"
-    wildcard_constraints:
-        method=TRAINED_RE,
-    # The 100 % training is the DAG's longest job: start trainings as soon as their scenes exist.
-    priority: PRIORITY["train"]
-    conda:
-        "../environment.yml"
-    threads: lambda w: METHOD[w.method].threads
-    resources:
-        mem_mb=MEM_MB["train"],
-    params:
-        method=lambda w: METHOD[w.method].to_dict(),
-    script:
-        "../workflow_scripts/train.py"
+# One training rule per trained method, so that each gets its own priority (train_priority).
+for _method in TRAINED:
+
+    rule:
+        name:
+            f"train_{_method}"
+        input:
+            **train_inputs(_method),
+        output:
+            model=f"results/models/{_method}/model.pt",
+            loss=f"results/models/{_method}/loss.csv",
+            summary=f"results/models/{_method}/train.json",
+        log:
+            f"results/logs/train/{_method}.log",
+        benchmark:
+            f"results/benchmarks/train/{_method}.tsv"
+        priority: train_priority(_method)
+        conda:
+            "../environment.yml"
+        threads: METHOD[_method].threads
+        resources:
+            mem_mb=MEM_MB["train"],
+        params:
+            method=METHOD[_method].to_dict(),
+        script:
+            "../workflow_scripts/train.py"

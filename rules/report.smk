@@ -39,3 +39,35 @@ rule report:
         manifest=report_manifest(),
     script:
         "../workflow_scripts/report.py"
+
+
+# The run's time line from every job's benchmark file (sonardet.report.timeline): wall time, job time,
+# idle core-time, the chain of jobs that set the end time, a Gantt figure. It runs last.
+rule run_timeline:
+    input:
+        # The report and the surveys come after every other job (it reads only benchmark files).
+        report_files(),
+        SURVEY_OUTPUTS,
+    output:
+        summary="results/report/timeline.json",
+        table="results/report/tables/timeline.csv",
+        figure=report(
+            "results/report/figures/timeline.png",
+            caption="../config/report/figure_timeline.rst",
+            category="Figures",
+        ),
+    log:
+        "results/logs/run_timeline.log",
+    benchmark:
+        "results/benchmarks/run_timeline.tsv"
+    priority: PRIORITY["report"]
+    conda:
+        "../environment.yml"
+    threads: 1
+    resources:
+        mem_mb=MEM_MB["report"],
+    params:
+        benchmarks="results/benchmarks",
+        cores=workflow.cores,
+    script:
+        "../workflow_scripts/run_timeline.py"

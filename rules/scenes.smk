@@ -1,29 +1,39 @@
 # Synthetic scenes, the train/validation/test split and the dataset table.
 
 
-rule simulate_scene:
-    input:
-        meshes=object_files("ply"),
-        meta=object_files("json"),
-    output:
-        npz="results/scenes/{scene}.npz",
-        json="results/scenes/{scene}.json",
-    log:
-        "results/logs/simulate_scene/{scene}.log",
-    benchmark:
-        "results/benchmarks/simulate_scene/{scene}.tsv"
-    priority: PRIORITY["simulate"]
-    conda:
-        "../environment.yml"
-    threads: 1
-    resources:
-        mem_mb=MEM_MB["simulate"],
-    params:
-        config={
-            k: config[k] for k in ("seed", "classes", "objects", "sensor", "scenes")
-        },
-    script:
-        "../workflow_scripts/simulate_scene.py"
+# One rule per priority class of scenes (common.smk: SCENE_PRIORITY): the smallest training fraction
+# and the dev scenes first, so the longest chain of the DAG (scenes -> training -> inference ->
+# evaluation -> report) starts as early as it can; the outputs are the same for every class.
+for _klass, (_priority, _ids) in SCENE_PRIORITY.items():
+
+    rule:
+        name:
+            f"simulate_scene_{_klass}"
+        input:
+            meshes=object_files("ply"),
+            meta=object_files("json"),
+        output:
+            npz="results/scenes/{scene}.npz",
+            json="results/scenes/{scene}.json",
+        log:
+            "results/logs/simulate_scene/{scene}.log",
+        benchmark:
+            "results/benchmarks/simulate_scene/{scene}.tsv"
+        wildcard_constraints:
+            scene=_alternation(_ids),
+        priority: _priority
+        conda:
+            "../environment.yml"
+        threads: 1
+        resources:
+            mem_mb=MEM_MB["simulate"],
+        params:
+            config={
+                k: config[k]
+                for k in ("seed", "classes", "objects", "sensor", "scenes")
+            },
+        script:
+            "../workflow_scripts/simulate_scene.py"
 
 
 rule simulate_scene_realism:

@@ -68,7 +68,7 @@ def test_only_the_final_evaluation_reads_test_scenes(tmp_path):
     test_files = {f"results/{d}/{s}.{e}" for d in ("scenes", "realism/scenes") for s in test for e in ("npz", "json")}
     jobs = _jobs(proc.stdout + proc.stderr)
     rules = {r for r, _ in jobs}
-    assert {"train", "ablation_point", "ablation_reference", "realism_ablation", "evaluate"} <= rules, rules
+    assert {"train_sasa_100", "ablation_point", "ablation_reference", "realism_ablation", "evaluate"} <= rules, rules
     bad = sorted({(r, f) for r, inputs in jobs for f in inputs if f in test_files and not ALLOWED.match(r)})
     assert not bad, f"jobs reading test scenes: {bad[:10]}"
     readers = {r for r, inputs in jobs if test_files & set(inputs)}

@@ -1,0 +1,87 @@
+"""The time line of a finished workflow run, from its benchmark files (sonardet.report.timeline):
+wall time, total job time, CPU time, idle core-time, the blocking chain (the jobs that set the end
+time) and the seconds per rule; optionally a Gantt figure.
+
+With ``--dag`` (run from the workflow folder with the run's config) it also asks Snakemake for the
+job graph (a dry run with --forceall) and reports the dependency critical path: the chain of jobs,
+each reading the one before's outputs, with the largest sum of measured seconds.
+
+Usage: ``python benchmarks/workflow.py [--results results] [--cores 2] [--dag [--configfile c.yaml]]
+[--png gantt.png] [--json out.json]``.
+Meaningful for a fresh run (``rm -rf results .snakemake && snakemake --cores 2``): after a partial
+rerun the old jobs keep their old times. The workflow's own rule ``run_timeline`` writes the same into
+results/report/ at the end of every run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+
+from sonardet.report.timeline import critical_path, plot_gantt, read_benchmarks, run_summary  # noqa: E402
+
+
+def job_graph(configfile: str | None) -> dict:
+    """job (benchmark path under results/benchmarks, without .tsv) -> the jobs producing its inputs,
+    from a Snakemake dry run of every job (--forceall)."""
+    import re
+    import subprocess
+
+    cmd = [sys.executable, "-m", "snakemake", "-n", "--forceall", "--cores", "2"]
+    if configfile:
+        cmd += ["--configfile", configfile]
+    text = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+    jobs, cur = [], None
+    for line in text.splitlines():
+        if re.match(r"^(local)?(rule|checkpoint) \S+:$", line.strip()):
+            cur = {"input": [], "output": [], "benchmark": None}
+            jobs.append(cur)
+        elif cur is not None and (m := re.match(r"^\s+(input|output|benchmark): (.*)$", line)):
+            vals = [v.strip() for v in m.group(2).split(",")]
+            if m.group(1) == "benchmark":
+                cur["benchmark"] = vals[0].removeprefix("results/benchmarks/").removesuffix(".tsv")
+            else:
+                cur[m.group(1)] = vals
+    producer = {o: j["benchmark"] for j in jobs if j["benchmark"] for o in j["output"]}
+    return {j["benchmark"]: sorted({producer[i] for i in j["input"] if i in producer})
+            for j in jobs if j["benchmark"]}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--results", default="results")
+    ap.add_argument("--cores", type=int, default=2)
+    ap.add_argument("--dag", action="store_true", help="also the dependency critical path (runs snakemake -n)")
+    ap.add_argument("--configfile", default=None)
+    ap.add_argument("--png", default=None)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args()
+    df = read_benchmarks(Path(args.results) / "benchmarks")
+    df = df[df["rule"] != "run_timeline.tsv"]
+    s = run_summary(df, args.cores)
+    print(f"{s['jobs']} jobs on {args.cores} cores: wall {s['wall_s'] / 60:.1f} min, job time "
+          f"{s['job_s'] / 60:.1f} min, CPU {s['cpu_s'] / 60:.1f} min, idle core-time {s['idle_core_s'] / 60:.1f} min "
+          f"({100 * s['utilisation']:.0f} % busy)")
+    print(f"blocking chain ({s['chain_s'] / 60:.1f} min of jobs):")
+    for c in s["chain"]:
+        print(f"  {c['start_s'] / 60:6.1f} min  {c['seconds']:7.1f} s  {c['job']}")
+    if args.dag:
+        path, total = critical_path(df, job_graph(args.configfile))
+        s["critical_path"], s["critical_path_s"] = path, total
+        print(f"dependency critical path ({total / 60:.1f} min of jobs): {' -> '.join(path)}")
+    print("seconds per rule (sum, jobs, max):")
+    for rule, v in s["per_rule"].items():
+        print(f"  {rule:36s} {v['sum_s']:8.0f} s  {v['jobs']:4d}  {v['max_s']:7.1f} s")
+    if args.png:
+        plot_gantt(df, args.png, args.cores)
+    if args.json:
+        Path(args.json).write_text(json.dumps(s, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

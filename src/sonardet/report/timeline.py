@@ -1,0 +1,144 @@
+"""The time line of a workflow run from its Snakemake benchmark files: when each job ran, the wall time,
+the total job time, the idle core-time, the chain of jobs that set the end time, and a Gantt figure.
+
+Each benchmark file (`{root}/{rule}/{wildcards...}.tsv`) holds a job's wall seconds (`s`) and CPU
+seconds (`cpu_time`); the file's modification time is when the job ended, so it started `s` seconds
+before. (Snakemake records no start times; the main log has them only to the second.) Meaningful
+for a run that made every job (a fresh run); after a partial rerun the old jobs keep their old times.
+
+The chain reported is the *blocking chain*: from the job that ended last, each step back is the job
+that ended last before this one started, i.e. what this job waited for (a dependency or a free
+core). Its total is the run's wall time minus the gaps in the chain.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .style import new_figure, write_figure
+
+__all__ = ["blocking_chain", "critical_path", "plot_gantt", "read_benchmarks", "run_summary"]
+
+
+def read_benchmarks(root) -> pd.DataFrame:
+    """Every `{root}/**/*.tsv` benchmark file as a row: rule (first folder under root), job (the rest of
+    the path), start and end (s, epoch), seconds (wall), cpu_s, max_rss_mb; sorted by start."""
+    rows = []
+    root = Path(root)
+    for p in sorted(root.rglob("*.tsv")):
+        try:
+            df = pd.read_csv(p, sep="\t")
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{p}: not a Snakemake benchmark file ({exc}); delete it and rerun its job") from None
+        if len(df) == 0 or "s" not in df.columns:
+            continue
+        rel = p.relative_to(root)
+        end = p.stat().st_mtime
+        s = float(df["s"].iloc[0])
+        cpu = pd.to_numeric(df.get("cpu_time", pd.Series([np.nan])), errors="coerce").iloc[0]
+        rss = pd.to_numeric(df.get("max_rss", pd.Series([np.nan])), errors="coerce").iloc[0]
+        rows.append({"rule": rel.parts[0] if len(rel.parts) > 1 else rel.stem,
+                     "job": str(rel.with_suffix("")), "start": end - s, "end": end, "seconds": s,
+                     "cpu_s": float(cpu), "max_rss_mb": float(rss)})
+    df = pd.DataFrame(rows, columns=["rule", "job", "start", "end", "seconds", "cpu_s", "max_rss_mb"])
+    return df.sort_values(["start", "job"]).reset_index(drop=True)
+
+
+def blocking_chain(df: pd.DataFrame, slack_s: float = 2.0) -> pd.DataFrame:
+    """The blocking chain (see module doc), in time order: from the last job back, each predecessor is
+    the job that ended last at most `slack_s` after this one started."""
+    if df.empty:
+        return df.copy()
+    chain = [int(df["end"].idxmax())]
+    while True:
+        start = df.loc[chain[-1], "start"]
+        before = df[(df["end"] <= start + slack_s) & (df.index != chain[-1]) & (df["start"] < start)]
+        if before.empty:
+            break
+        chain.append(int(before["end"].idxmax()))
+    return df.loc[list(reversed(chain))].reset_index(drop=True)
+
+
+def critical_path(df: pd.DataFrame, deps: dict) -> tuple[list[str], float]:
+    """The dependency critical path: the chain of jobs, each depending on the one before
+    (deps: job -> the jobs whose outputs it reads), with the largest sum of measured wall seconds;
+    (jobs in order, seconds). Jobs without a benchmark count 0 s."""
+    secs = dict(zip(df["job"], df["seconds"]))
+    order = sorted(set(deps) | {d for ds in deps.values() for d in ds} | set(secs),
+                   key=lambda j: dict(zip(df["job"], df["start"])).get(j, -1.0))
+    best: dict[str, tuple[float, str | None]] = {}
+
+    def longest(j, stack=()):
+        if j in best:
+            return best[j][0]
+        if j in stack:
+            raise ValueError(f"dependency cycle at {j}")
+        pre = [(longest(d, stack + (j,)), d) for d in deps.get(j, ())]
+        top = max(pre, default=(0.0, None))
+        best[j] = (top[0] + float(secs.get(j, 0.0)), top[1])
+        return best[j][0]
+
+    for j in order:
+        longest(j)
+    end = max(best, key=lambda j: best[j][0])
+    path = [end]
+    while best[path[-1]][1] is not None:
+        path.append(best[path[-1]][1])
+    return list(reversed(path)), best[end][0]
+
+
+def run_summary(df: pd.DataFrame, cores: int) -> dict:
+    """Wall time (s, first start to last end), total job time (s, sum of wall seconds), CPU time (s),
+    idle core-time (cores x wall - CPU time, s), jobs, the blocking chain's rules and seconds, and the
+    seconds per rule (sum, sorted)."""
+    if df.empty:
+        return {"jobs": 0}
+    wall = float(df["end"].max() - df["start"].min())
+    cpu = float(np.nansum(df["cpu_s"]))
+    chain = blocking_chain(df)
+    per_rule = df.groupby("rule")["seconds"].agg(["count", "sum", "max"]).sort_values("sum", ascending=False)
+    return {"jobs": int(len(df)), "cores": int(cores), "wall_s": wall, "job_s": float(df["seconds"].sum()),
+            "cpu_s": cpu, "idle_core_s": max(0.0, cores * wall - cpu),
+            "utilisation": cpu / (cores * wall) if wall > 0 else math.nan,
+            "chain": [{"job": r.job, "rule": r.rule, "start_s": float(r.start - df["start"].min()),
+                       "seconds": float(r.seconds)} for r in chain.itertuples()],
+            "chain_s": float(chain["seconds"].sum()),
+            "per_rule": {k: {"jobs": int(v["count"]), "sum_s": float(v["sum"]), "max_s": float(v["max"])}
+                         for k, v in per_rule.iterrows()}}
+
+
+def plot_gantt(df: pd.DataFrame, out_png, cores: int, title: str = "workflow run") -> Path:
+    """A Gantt chart: one bar per job on the lane (of `cores`, plus overflow lanes for threads beyond)
+    it ran in, coloured by rule, the blocking chain outlined; x in minutes from the first start."""
+    t0 = df["start"].min() if len(df) else 0.0
+    lanes_end: list[float] = []
+    lane = []
+    for r in df.itertuples():
+        free = [i for i, e in enumerate(lanes_end) if e <= r.start + 0.5]
+        i = free[0] if free else len(lanes_end)
+        if i == len(lanes_end):
+            lanes_end.append(r.end)
+        else:
+            lanes_end[i] = r.end
+        lane.append(i)
+    rules = list(dict.fromkeys(df["rule"]))
+    cmap = {r: f"C{k % 10}" for k, r in enumerate(rules)}
+    chain = set(blocking_chain(df)["job"]) if len(df) else set()
+    fig = new_figure(10.0, 1.2 + 0.35 * max(len(lanes_end), 1))
+    ax = fig.subplots()
+    for r, ln in zip(df.itertuples(), lane):
+        ax.barh(ln, (r.end - r.start) / 60.0, left=(r.start - t0) / 60.0, color=cmap[r.rule], height=0.8,
+                edgecolor="black" if r.job in chain else "none", linewidth=1.2)
+    for k, r in enumerate(rules):
+        ax.barh(-10, 0, color=cmap[r], label=r)  # legend entries
+    ax.set_ylim(-0.6, max(len(lanes_end), 1) - 0.4)
+    ax.set_yticks(range(len(lanes_end)), [f"lane {i + 1}" + (" (over cores)" if i >= cores else "")
+                                          for i in range(len(lanes_end))])
+    ax.set_xlabel("minutes since the first job started")
+    ax.set_title(f"{title}: {len(df)} jobs; outlined: the blocking chain")
+    ax.legend(fontsize=6, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.25), frameon=False)
+    return write_figure(fig, out_png)
