@@ -13,6 +13,7 @@ sys.path.insert(0, os.path.join(workflow.basedir, "src"))
 from sonardet import methods as method_registry
 from sonardet.config import (
     ConfigError,
+    mismatch_test_config,
     realism_effect_config,
     realism_effects,
     realism_test_config,
@@ -75,6 +76,11 @@ if config["realism_test"]["enabled"]:
     DATASET_DIRS["realism"] = "results/realism/scenes"
     DATASETS["realism_dev"] = SPLIT["dev"]
     DATASET_DIRS["realism_dev"] = "results/realism/scenes"
+if config["mismatch_test"]["enabled"]:
+    DATASETS["mismatch"] = SPLIT["test"][: config["mismatch_test"]["n_scenes"]]
+    DATASET_DIRS["mismatch"] = "results/mismatch/scenes"
+    DATASETS["mismatch_dev"] = SPLIT["dev"][: config["mismatch_test"]["n_dev"]]
+    DATASET_DIRS["mismatch_dev"] = "results/mismatch/scenes"
 HYBRID = config["hybrid_test"]["enabled"] and os.path.exists(
     config["hybrid_test"]["soundings"]
 )
@@ -128,7 +134,9 @@ REALISM_ABLATION_DATASETS = ["dev", "realism_dev"] + list(REALISM_EFFECTS.values
 #: Datasets evaluated on their own (the ablation datasets are evaluated together, in one job).
 EVAL_DATASETS = [d for d in DATASETS if d not in REALISM_EFFECTS.values()]
 #: The test sets (final results); the others are development sets.
-TEST_DATASETS = [d for d in ("synthetic", "realism", "hybrid") if d in DATASETS]
+TEST_DATASETS = [
+    d for d in ("synthetic", "realism", "hybrid", "mismatch") if d in DATASETS
+]
 #: Ablation grid points by name, the method each runs, and the test scenes they run on.
 ABLATION = (
     {p["name"]: p for p in config["ablation"]["points"]}
@@ -305,6 +313,7 @@ REPORT_TABLES = (
     + (["ablation"] if ABLATION else [])
     + (["noise"] if NOISE else [])
     + (["comparison_hybrid"] if "hybrid" in DATASETS else [])
+    + (["comparison_mismatch", "mismatch_breakdown"] if "mismatch" in DATASETS else [])
     + (["realism_ablation"] if REALISM_EFFECTS else [])
     + (["domain_randomisation"] if VARIANTS else [])
     + (["seeds"] if SEEDS else [])

@@ -63,6 +63,33 @@ rule simulate_scene_realism:
         "../workflow_scripts/simulate_scene.py"
 
 
+rule simulate_scene_mismatch:
+    input:
+        meshes=object_files("ply"),
+        meta=object_files("json"),
+    output:
+        npz="results/mismatch/scenes/{scene}.npz",
+        json="results/mismatch/scenes/{scene}.json",
+    log:
+        "results/logs/simulate_scene_mismatch/{scene}.log",
+    benchmark:
+        "results/benchmarks/simulate_scene_mismatch/{scene}.tsv"
+    priority: PRIORITY["simulate"]
+    conda:
+        "../environment.yml"
+    threads: 1
+    resources:
+        mem_mb=MEM_MB["simulate"],
+    params:
+        config={
+            k: v
+            for k, v in mismatch_test_config(config).items()
+            if k in ("seed", "classes", "objects", "sensor", "scenes")
+        },
+    script:
+        "../workflow_scripts/simulate_scene.py"
+
+
 rule simulate_scene_realism_effect:
     input:
         meshes=object_files("ply"),

@@ -21,7 +21,7 @@ from sonardet.sim.dataset import make_splits, scene_ids
 #: Jobs that may read test scenes: the final detection and evaluation (and comparison) of each method on a test set,
 #: the report and the dataset table, which present them (they choose nothing), and the target rule
 #: `all`, which runs nothing.
-ALLOWED = re.compile(r"^(detect_scene|detect_dataset_(synthetic|realism|hybrid)|evaluate|compare|report|dataset_stats"
+ALLOWED = re.compile(r"^(detect_scene|detect_dataset_(synthetic|realism|hybrid|mismatch)|evaluate|compare|report|dataset_stats"
                      r"|all)$")
 
 
@@ -65,7 +65,8 @@ def test_only_the_final_evaluation_reads_test_scenes(tmp_path):
     ids = scene_ids(cfg["scenes"]["n_scenes"] + cfg["split"]["n_dev"])
     test = make_splits(ids, cfg["split"]["n_test"], cfg["split"]["n_dev"], cfg["split"]["fractions"],
                        cfg["seed"])["test"]
-    test_files = {f"results/{d}/{s}.{e}" for d in ("scenes", "realism/scenes") for s in test for e in ("npz", "json")}
+    test_files = {f"results/{d}/{s}.{e}" for d in ("scenes", "realism/scenes", "mismatch/scenes") for s in test
+                  for e in ("npz", "json")}
     jobs = _jobs(proc.stdout + proc.stderr)
     rules = {r for r, _ in jobs}
     assert {"train_sasa_100", "ablation_point", "ablation_reference", "realism_ablation", "evaluate"} <= rules, rules

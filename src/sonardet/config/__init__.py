@@ -19,10 +19,16 @@ import yaml
 from ..objects import classes
 from ..plugins import PluginError, load_plugins
 from .checks import cross_checks
-from .realism import REALISM_EFFECT_GROUPS, realism_effect_config, realism_effects, realism_test_config
+from .realism import (
+    REALISM_EFFECT_GROUPS,
+    mismatch_test_config,
+    realism_effect_config,
+    realism_effects,
+    realism_test_config,
+)
 from .schema import read_schema
 
-__all__ = ["REALISM_EFFECT_GROUPS", "ConfigError", "read_config", "read_schema", "realism_effect_config",
+__all__ = ["REALISM_EFFECT_GROUPS", "ConfigError", "mismatch_test_config", "read_config", "read_schema", "realism_effect_config",
            "realism_effects", "realism_test_config", "validate_config"]
 
 

@@ -7,6 +7,7 @@ import math
 from .. import methods
 from ..experiments.ablation import check_points
 from ..objects import classes
+from ..objects.perturb import check_ranges
 from .realism import realism_effects
 
 __all__ = ["cross_checks"]
@@ -135,6 +136,8 @@ def cross_checks(cfg: dict, validate) -> list[str]:
         out += _ablation_checks(cfg) + _survey_method_checks(cfg)
     out += validate(cfg)
     out += _realism_ablation_checks(cfg)
+    if cfg["mismatch_test"]["enabled"]:
+        out += check_ranges(cfg["mismatch_test"]["perturbations"], cfg["objects"])
     if cfg["split"]["n_test"] >= cfg["scenes"]["n_scenes"]:
         out.append(f"split.n_test: {cfg['split']['n_test']} test scenes leave none of the "
                    f"{cfg['scenes']['n_scenes']} scenes (scenes.n_scenes) for training")

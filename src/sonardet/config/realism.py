@@ -7,7 +7,19 @@ import copy
 
 from ..sim.effects import REALISM_EFFECT_GROUPS
 
-__all__ = ["REALISM_EFFECT_GROUPS", "realism_effect_config", "realism_effects", "realism_test_config"]
+__all__ = ["REALISM_EFFECT_GROUPS", "mismatch_test_config", "realism_effect_config", "realism_effects",
+           "realism_test_config"]
+
+
+def mismatch_test_config(cfg: dict) -> dict:
+    """The scene config of the model-mismatch test set: `cfg` with each object's geometry perturbed by
+    `mismatch_test.perturbations` and the objects buried by its `burial_m` (same seeds, so the same
+    seabeds and layouts as the synthetic scenes; the physics settles the new shapes)."""
+    out = copy.deepcopy(cfg)
+    per = copy.deepcopy(cfg["mismatch_test"]["perturbations"])
+    out["scenes"]["mismatch"] = {"perturbations": per}
+    out["scenes"]["realism"] = {"burial_m": list(per["burial_m"])}
+    return out
 
 
 def realism_test_config(cfg: dict) -> dict:

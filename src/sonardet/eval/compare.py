@@ -18,7 +18,23 @@ from ..geometry import quat_to_matrix
 from .bootstrap import bootstrap_map, interval, scene_flags
 from .evaluate import MAX_BOXES_PER_SCENE, evaluate, prepare
 
-__all__ = ["SCORINGS", "compare_files", "compare_methods", "mark_dont_care"]
+__all__ = ["PERTURBATION_BINS", "SCORINGS", "compare_files", "compare_methods", "mark_dont_care",
+           "perturbation_breakdown"]
+
+#: Bins of the model-mismatch breakdown: name -> (record key, [low, high) edges or values); an object
+#: is in a bin if its perturbation record (or its burial_m) falls in it.
+PERTURBATION_BINS = {
+    "leg scale 0.65-0.85": ("leg_scale", (0.0, 0.85)),
+    "leg scale 0.85-1.15": ("leg_scale", (0.85, 1.15)),
+    "leg scale 1.15-1.35": ("leg_scale", (1.15, 9.0)),
+    "broken leg": ("broken_leg", "set"),
+    "legs intact": ("broken_leg", "unset"),
+    "fouling 0-2 cm": ("fouling_m", (0.0, 0.02)),
+    "fouling 2-5 cm": ("fouling_m", (0.02, 9.0)),
+    "burial 0-0.1 m": ("burial_m", (0.0, 0.1)),
+    "burial 0.1-0.2 m": ("burial_m", (0.1, 0.2)),
+    "burial 0.2-0.3 m": ("burial_m", (0.2, 9.0)),
+}
 
 SCORINGS = ("all", "accepted", "dont_care")
 
@@ -102,6 +118,42 @@ def compare_methods(gt: dict, dets_by_method: dict, classes, evaluation: dict, r
     return out
 
 
+def _in_bin(obj: dict, key: str, rule) -> bool | None:
+    """Whether an object is in a bin (None: the bin does not apply to it, e.g. leg scale of a cone)."""
+    rec = {**(obj.get("perturbation") or {}), "burial_m": obj.get("burial_m", 0.0)}
+    if key not in rec:
+        return None
+    v = rec[key]
+    if rule == "set":
+        return v is not None
+    if rule == "unset":
+        return v is None
+    return v is not None and rule[0] <= float(v) < rule[1]
+
+
+def perturbation_breakdown(gt: dict, dets_by_method: dict, classes, evaluation: dict) -> dict:
+    """mAP per perturbation bin (:data:`PERTURBATION_BINS`) of every method on a model-mismatch set:
+    the objects outside the bin are don't-care (a box on one is neither true nor false positive), and
+    the mean is over the classes with objects in the bin. Returns {bin: {n_objects, classes,
+    methods: {method: mAP}}}."""
+    out = {}
+    for name, (key, rule) in PERTURBATION_BINS.items():
+        marked = {sid: [{**o, "ignore": not _in_bin(o, key, rule)} for o in objs] for sid, objs in gt.items()}
+        counted = [o for objs in marked.values() for o in objs if not o["ignore"] and o.get("visible", True)]
+        present = [c for c in classes if any(o["cls"] == c for o in counted)]
+        if not present:
+            continue
+        row = {"n_objects": len(counted), "classes": present, "methods": {}}
+        for m, dets in dets_by_method.items():
+            res = evaluate(marked, dets, classes, [evaluation["headline_m"]], evaluation["headline_m"],
+                           min_recall=evaluation["min_recall"], min_precision=evaluation["min_precision"],
+                           max_boxes_per_scene=evaluation.get("max_boxes_per_scene", MAX_BOXES_PER_SCENE))
+            hk = repr(float(evaluation["headline_m"]))
+            row["methods"][m] = float(np.mean([res["per_class"][c]["AP"][hk] for c in present]))
+        out[name] = row
+    return out
+
+
 def compare_files(scene_jsons, detections: dict, object_jsons, classes, evaluation: dict, reference: str | None,
                   dont_care: dict | None, n_resamples: int, seed: int, level: float) -> dict:
     """:func:`compare_methods` on files: scene JSONs (ground truth), method -> its detection JSONs on
@@ -124,6 +176,9 @@ def compare_files(scene_jsons, detections: dict, object_jsons, classes, evaluati
     up = {m["cls"]: np.asarray(m["up_axes"], dtype=np.float64) for m in metas}
     sym = [m["cls"] for m in metas if m["rotationally_symmetric"]]
     periods = {m["cls"]: 2 * math.pi / m["symmetry_order"] for m in metas if m["symmetry_order"] > 1}
-    return compare_methods(gt, dets, classes, evaluation, reference=reference, dont_care=dont_care, up_axes=up,
-                           n_resamples=n_resamples, seed=seed, level=level, symmetric_classes=sym,
-                           yaw_periods_rad=periods)
+    out = compare_methods(gt, dets, classes, evaluation, reference=reference, dont_care=dont_care, up_axes=up,
+                          n_resamples=n_resamples, seed=seed, level=level, symmetric_classes=sym,
+                          yaw_periods_rad=periods)
+    if any("perturbation" in o for objs in gt.values() for o in objs):
+        out["perturbation_breakdown"] = perturbation_breakdown(gt, dets, classes, evaluation)
+    return out

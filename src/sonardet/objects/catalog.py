@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,8 @@ class ObjectInfo:
     up_axes: np.ndarray
     #: Tumbled poses a detector tries on leftovers (sonardet.objects.classes.TUMBLE_MODES).
     tumble: dict
+    #: The builder's description of the shape (e.g. a tetrapod's solved leg radii), from the JSON.
+    spec: dict = field(default_factory=dict)
 
     def box(self, t, q) -> np.ndarray:
         """Evaluation box `[x,y,z,l,w,h,yaw]` of this object at pose (t, q=(w,x,y,z))."""
@@ -44,7 +46,8 @@ def object_info(model: ObjectModel, density_kg_m3: float) -> ObjectInfo:
     return ObjectInfo(cls=model.cls, mesh=model.mesh, convex_parts=list(model.convex_parts),
                       mass_kg=vol * float(density_kg_m3), volume_m3=vol, symmetry_order=int(model.symmetry_order),
                       extents_m=np.asarray(model.mesh.extents, dtype=np.float64),
-                      up_axes=np.asarray(meta["up_axes"], dtype=np.float64), tumble=meta["tumble"])
+                      up_axes=np.asarray(meta["up_axes"], dtype=np.float64), tumble=meta["tumble"],
+                      spec=dict(model.spec))
 
 
 def canonical_box(vertices, t, q, symmetry_order: int) -> np.ndarray:
@@ -137,4 +140,5 @@ def read_object(json_path, ply_path=None) -> ObjectInfo:
         extents_m=np.asarray(meta["extents_m"], dtype=np.float64),
         up_axes=np.asarray(meta["up_axes"], dtype=np.float64).reshape(-1, 3),
         tumble=dict(meta["tumble"]),
+        spec=dict(meta.get("spec") or {}),
     )

@@ -251,3 +251,37 @@ def build_reef_ring(height_m: float, outer_diameter_m: float, outer_wall_m: floa
     spec = {"height_m": height_m, "outer_diameter_m": outer_diameter_m, "outer_wall_m": outer_wall_m,
             "inner_wall_m": inner_wall_m, "gap_m": gap_m, "n_ribs": n_ribs}
     return ObjectModel("reef_ring", mesh, convex, float(spec_volume), SYMMETRY_CONTINUOUS, spec)
+
+
+def build_tetrapod_variant(cls: str, height_m: float, root_ratio: float, taper: float, sections: int,
+                           leg_scale: float = 1.0, short_leg: int | None = None, short_frac: float = 0.0,
+                           rounded: bool = False) -> ObjectModel:
+    """A tetrapod unlike its class model (for model-mismatch scenes): the leg root radius / leg length
+    `root_ratio` times `leg_scale` (thinner or thicker legs at the same overall height), optionally
+    one down leg (`short_leg` 1-3) shortened by `short_frac` of its length (broken) and the leg ends
+    rounded (a sphere of the tip radius inside each end, so no leg gets longer). Canonical frame as every object (lowest point at
+    z = 0); its symmetry order stays 3 (the class's)."""
+    parts, leg_len, r0, r1 = _tetrapod_parts(height_m, root_ratio * leg_scale, taper, sections)
+    dirs = tetrapod_leg_directions()
+    if short_leg is not None and short_frac > 0:
+        length = leg_len * (1.0 - short_frac)
+        leg = _frustum(r0, r0 + (r1 - r0) * (1.0 - short_frac), length, sections)
+        leg.apply_transform(_align_z_to(dirs[short_leg]))
+        parts[short_leg] = leg
+    if rounded:
+        for k, d in enumerate(dirs):
+            reach = leg_len * (1.0 - short_frac) if k == short_leg else leg_len
+            tip_r = r1 if k != short_leg else r0 + (r1 - r0) * (1.0 - short_frac)
+            tip = trimesh.creation.icosphere(subdivisions=2, radius=tip_r)
+            tip.apply_translation(np.asarray(d) * (reach - tip_r))  # rounds the end, no longer leg
+            parts.append(tip)
+    mesh = _union(parts)
+    shift = -mesh.bounds[0, 2]
+    mesh.apply_translation([0.0, 0.0, shift])
+    # The physics takes the legs and the hub (the rounded ends, inside the legs' reach, add nothing but
+    # collision cost).
+    convex = [np.asarray(p.vertices) + [0.0, 0.0, shift] for p in parts[:5]]
+    spec = {"height_m": height_m, "leg_length_m": leg_len, "leg_root_radius_m": r0, "leg_tip_radius_m": r1,
+            "taper": taper, "leg_scale": leg_scale, "short_leg": short_leg, "short_frac": short_frac,
+            "rounded": rounded}
+    return ObjectModel(cls, mesh, convex, float(mesh.volume), 3, spec)

@@ -35,6 +35,7 @@ from .inputs import read_json
 from .study import STUDY_REAL_SONAR, STUDY_SOURCE
 from .summary import machine_info, write_results_readme
 from .tables import (
+    breakdown_table,
     comparison_table,
     dataset_table,
     differences_table,
@@ -132,11 +133,13 @@ def build_tables(man: dict) -> dict[str, pd.DataFrame]:
     tables = {"dataset": dataset_table(man["dataset_table"]),
               "comparison": comparison_table(_metrics_on(man, "synthetic"), classes,
                                              intervals=_intervals(man, "synthetic"), budgets=_budgets(man))}
-    for dataset in ("realism", "hybrid"):
+    for dataset in ("realism", "hybrid", "mismatch"):
         if f"comparison_{dataset}" in want:
             tables[f"comparison_{dataset}"] = _with_real_sonar(
                 comparison_table(_metrics_on(man, dataset), classes, study=False,
                                  intervals=_intervals(man, dataset), budgets=_budgets(man)))
+    if "mismatch_breakdown" in want:
+        tables["mismatch_breakdown"] = breakdown_table(man["compare"]["mismatch"])
     tables["differences"] = differences_table({d: man["compare"][d] for d in man["datasets"]})
     tables["ladder"] = _ladder(man)
     tables["dont_care"] = scoring_table(man["compare"]["synthetic"], [m["name"] for m in man["methods"]])

@@ -434,3 +434,14 @@ def seeds_table(groups: dict) -> pd.DataFrame:
                      "mAP min": float(np.min(maps)), "mAP max": float(np.max(maps)),
                      "mAP per seed": ", ".join(f"{v:.3f}" for v in maps)})
     return pd.DataFrame(rows)
+
+
+def breakdown_table(compare) -> pd.DataFrame:
+    """The model-mismatch breakdown (compare JSON's `perturbation_breakdown`): one row per perturbation
+    bin, the number of objects and classes in it, and every method's mAP over them."""
+    c = read_json(compare)
+    rows = []
+    for name, b in c.get("perturbation_breakdown", {}).items():
+        rows.append({"perturbation": name, "objects": b["n_objects"], "classes": ", ".join(b["classes"]),
+                     **{f"mAP {m}": v for m, v in b["methods"].items()}})
+    return pd.DataFrame(rows)

@@ -26,6 +26,7 @@ from ..seeds import config_hash, derive_seed
 from ..geometry import quat_to_matrix
 from ..objects import ObjectInfo
 from ..objects.catalog import canonical_box
+from ..objects.perturb import draw_perturbation, perturbed_object
 from .layout import plan_layout
 from .mbes import RaycastTarget, SensorConfig, Soundings, scan, survey_lines, swath_half_width_m
 from .effects import swath_margin_m
@@ -107,11 +108,15 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
     spawns, unplaced, radius = layout_objects(scene_id, config, objects, sc, extent, hf, rngs["layout"])
     rocks, rock_meta = _place_rocks(scene_id, sc, spawns, radius, hf, rngs["rocks"])
     timings["layout_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    own = mismatch_objects(spawns, objects, sc.get("mismatch"), config["objects"], seed)
+    if own is not None:
+        timings["mismatch_s"] = time.perf_counter() - t0
 
     # Physics, then burial: settled objects sink into the sediment (the physics knows no sediment).
     t0 = time.perf_counter()
     kept, removed, phys, rocks = _settle_scene(scene_id, spawns, objects, hf, sc, rngs["physics"], extent, rocks,
-                                               rock_meta, timings)
+                                               rock_meta, timings, own)
     timings["physics_s"] = time.perf_counter() - t0
     burial_m = (sc.get("realism") or {}).get("burial_m", [0.0, 0.0])
     kept, buried = bury_objects(kept, spawns, burial_m, np.random.default_rng(derive_seed(seed, "burial")))
@@ -121,7 +126,7 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
     direction = str(rngs["survey"].choice(sv["directions"]))
     traj = survey_lines(extent, direction, sv["transducer_z_m"], altitude, sv["overlap"], sensor,
                         run_in_m=sv["run_in_m"])
-    posed = _posed_meshes(kept, spawns, objects)
+    posed = _posed_meshes(kept, spawns, objects, own)
     rocks = [m.copy().apply_translation(pos) for m, pos in rocks]
     do_cull = sc["cull_to_swath"] if cull is None else cull
     snd, n_tri = _scan_survey(traj, hf, posed, rocks, sensor, sv["transducer_z_m"], do_cull, rngs["sensor"])
@@ -129,7 +134,7 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
     timings["scan_s"] = time.perf_counter() - t0
     label = np.where(snd.mesh >= 0, snd.mesh, -1).astype(np.int32)[inside]
 
-    objs = annotate_objects(kept, spawns, objects, label, sc["min_points_visible"], buried)
+    objs = annotate_objects(kept, spawns, objects, label, sc["min_points_visible"], buried, own)
     meta = {
         "schema_version": SCHEMA_VERSION,
         "scene": scene_id,
@@ -214,14 +219,28 @@ def _place_rocks(scene_id: str, sc: dict, spawns, radius: dict, hf, rng: np.rand
     return rocks, rock_meta
 
 
+def mismatch_objects(spawns, objects: dict[str, ObjectInfo], mismatch: dict | None, objects_cfg: dict, seed: int):
+    """For a model-mismatch scene (`scenes.mismatch`), each spawn's own perturbed object and its draws
+    [(ObjectInfo, record)] (sonardet.objects.perturb; draws seeded from the scene and the spawn);
+    None for an ordinary scene."""
+    if not mismatch:
+        return None
+    out = []
+    for k, sp in enumerate(spawns):
+        rec = draw_perturbation(sp.cls, mismatch["perturbations"], np.random.default_rng(derive_seed(seed, "mismatch", k)))
+        out.append((perturbed_object(sp.cls, rec, objects_cfg, objects[sp.cls]), rec))
+    return out
+
+
 def _settle_scene(scene_id: str, spawns, objects, hf, sc: dict, rng: np.random.Generator, extent, rocks,
-                  rock_meta: list, timings: dict):
+                  rock_meta: list, timings: dict, own=None):
     """Settle the spawns with the rocks as fixed obstacles (:func:`settle_spawns`); rocks the physics
     rejects are logged, flagged removed in rock_meta and left out. Returns (kept, removed, physics
     summary, remaining rocks); adds the physics timings to `timings`."""
     rock_bodies = [RigidBody(f"rock{k}", [np.asarray(m.vertices)], 1.0, pos, static=True)
                    for k, (m, pos) in enumerate(rocks)]
-    res, kept, removed, phys = settle_spawns(scene_id, spawns, objects, hf, sc["physics"], rng, extent, rock_bodies)
+    res, kept, removed, phys = settle_spawns(scene_id, spawns, objects, hf, sc["physics"], rng, extent, rock_bodies,
+                                             own)
     if res is not None:
         gone_rocks = {int(rb.name[4:]) for rb in res.removed if rb.name.startswith("rock")}
         for k in sorted(gone_rocks):
@@ -233,11 +252,16 @@ def _settle_scene(scene_id: str, spawns, objects, hf, sc: dict, rng: np.random.G
     return kept, removed, phys, rocks
 
 
-def _posed_meshes(kept, spawns, objects: dict[str, ObjectInfo]):
+def _geometry(k: int, spawns, objects: dict[str, ObjectInfo], own=None) -> ObjectInfo:
+    """The object of spawn k: its own perturbed one in a mismatch scene, else its class model."""
+    return own[k][0] if own is not None else objects[spawns[k].cls]
+
+
+def _posed_meshes(kept, spawns, objects: dict[str, ObjectInfo], own=None):
     """[(vertices (V, 3) in the scene frame, faces (F, 3), object index)] of the kept objects."""
     posed = []
     for idx, (k, t, q) in enumerate(kept):
-        obj = objects[spawns[k].cls]
+        obj = _geometry(k, spawns, objects, own)
         v = obj.mesh.vertices @ quat_to_matrix(q).T + t
         posed.append((v, np.asarray(obj.mesh.faces), idx))
     return posed
@@ -289,15 +313,16 @@ def _culled_target(hf, posed, rocks, rect) -> RaycastTarget:
 
 
 def settle_spawns(scene_id: str, spawns, objects: dict[str, ObjectInfo], hf, physics: dict,
-                  rng: np.random.Generator, bounds_xy, static_bodies=()):
+                  rng: np.random.Generator, bounds_xy, static_bodies=(), own=None):
     """Drop the planned objects (bodies ``o{k}`` for spawn k) with MuJoCo onto the heightfield and the
     static bodies, with the `scenes.physics` settings. Returns (settle result or None when there is
     nothing to drop, kept [(spawn index, t (3,), q (4,))], removed [{cls, reason, arrangement}],
     physics summary). Objects the physics removes are logged, never dropped silently."""
     if not spawns:
         return None, [], [], {"n_steps": 0, "sim_time_s": 0.0, "all_at_rest": True}
-    bodies = [RigidBody(f"o{k}", objects[s.cls].convex_parts, objects[s.cls].mass_kg, s.t, s.q)
-              for k, s in enumerate(spawns)] + list(static_bodies)
+    geo = [_geometry(k, spawns, objects, own) for k in range(len(spawns))]
+    bodies = [RigidBody(f"o{k}", g.convex_parts, g.mass_kg, s.t, s.q)
+              for k, (s, g) in enumerate(zip(spawns, geo))] + list(static_bodies)
     res = settle(bodies, hf, rng=rng, max_time_s=physics["max_time_s"], dt_s=physics["dt_s"],
                  lin_vel_tol=physics["lin_vel_tol"], ang_vel_tol=physics["ang_vel_tol"],
                  settle_window_s=physics["settle_window_s"], bounds_xy=bounds_xy, friction=physics["friction"],
@@ -322,14 +347,15 @@ def bury_objects(kept, spawns, burial_m, rng: np.random.Generator):
 
 
 def annotate_objects(kept, spawns, objects: dict[str, ObjectInfo], label: np.ndarray, min_points_visible: int,
-                     buried=None) -> list[dict]:
-    """The scene JSON's object entries (DESIGN.md section 3): id, class, pose, canonical box, number of
-    soundings (from `label`, object index per sounding or -1), visibility, arrangement, burial depth."""
+                     buried=None, own=None) -> list[dict]:
+    """The scene JSON's object entries (DESIGN.md section 3): id, class, pose, canonical box (of the
+    object's own mesh in a mismatch scene), number of soundings (from `label`, object index per
+    sounding or -1), visibility, arrangement, burial depth, the perturbation drawn (mismatch)."""
     n_pts = np.bincount(label[label >= 0], minlength=len(kept))
     objs = []
     for idx, (k, t, q) in enumerate(kept):
         sp = spawns[k]
-        obj = objects[sp.cls]
+        obj = _geometry(k, spawns, objects, own)
         box = canonical_box(obj.mesh.vertices, t, q, obj.symmetry_order)
         objs.append({
             "id": idx, "cls": sp.cls,
@@ -341,4 +367,6 @@ def annotate_objects(kept, spawns, objects: dict[str, ObjectInfo], label: np.nda
         })
         if buried is not None:
             objs[-1]["burial_m"] = float(buried[idx])
+        if own is not None:
+            objs[-1]["perturbation"] = own[k][1]
     return objs
