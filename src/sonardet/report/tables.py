@@ -114,11 +114,15 @@ def latex_table(df: pd.DataFrame, caption: str | None = None, label: str | None 
                           label=label if cap is not None else None)
 
 
+#: The files of one table, `{stem}{suffix}` each (`write_table`).
+TABLE_SUFFIXES = (".csv", ".md", ".tex")
+
+
 def write_table(df: pd.DataFrame, stem, caption: str | None = None) -> list[Path]:
     """Write a table as `{stem}.csv` (full precision, missing values empty), `{stem}.md` (GitHub
     Markdown) and `{stem}.tex` (booktabs, label `tab:{stem name}`), each atomically. Returns the paths."""
     stem = Path(stem)
-    paths = [stem.with_name(stem.name + ext) for ext in (".csv", ".md", ".tex")]
+    paths = [stem.with_name(stem.name + ext) for ext in TABLE_SUFFIXES]
     atomic_write_text(paths[0], df.to_csv(index=False, lineterminator="\n"))
     atomic_write_text(paths[1], markdown_table(df, caption))
     atomic_write_text(paths[2], latex_table(df, caption, label=f"tab:{stem.name}"))
