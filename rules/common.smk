@@ -10,6 +10,7 @@ from snakemake.exceptions import WorkflowError
 # script does the same through workflow_scripts/common.py.
 sys.path.insert(0, os.path.join(workflow.basedir, "src"))
 
+from sonardet import determinism
 from sonardet import methods as method_registry
 from sonardet.config import (
     ConfigError,
@@ -23,6 +24,10 @@ from sonardet.experiments.ablation import point_method
 from sonardet.survey import enabled_surveys, tile_ids
 from sonardet.seeds import derive_seed
 from sonardet.sim.dataset import make_splits, scene_ids, split_names
+
+# Fixed thread counts and instruction-set paths of the numerical libraries for every job (inherited
+# from this process): the same bytes on another machine of the same kind (README, Reproducibility).
+determinism.apply()
 
 
 def notice(message):
