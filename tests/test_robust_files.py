@@ -334,3 +334,14 @@ def test_write_scene_writes_both_files_or_neither(tmp_path, monkeypatch):
         scene(tmp_path)
     assert (npz.read_bytes(), js.read_bytes()) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s0001.json", "s0001.npz"]
+
+
+def test_csv_tables_read_back_name_the_file(tmp_path):
+    from sonardet.report.inputs import read_csv_file
+
+    path = garbage(tmp_path / "loss.csv")
+    with pytest.raises(FileReadError) as exc:
+        read_csv_file(path, "loss curve (loss.csv)")
+    assert_names_file(exc, path)
+    with pytest.raises(FileNotFoundError, match="loss.csv"):
+        read_csv_file(tmp_path / "x" / "loss.csv", "loss curve")

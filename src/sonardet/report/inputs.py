@@ -28,6 +28,14 @@ def read_json(source) -> dict:
     return read_json_file(path, "result file")
 
 
+def read_csv_file(path, what: str) -> pd.DataFrame:
+    """A CSV table (pandas), errors (truncated, not CSV, not UTF-8) naming the file and the fix."""
+    if not Path(path).exists():
+        raise FileNotFoundError(f"{path}: file not found ({what})")
+    with reading(path, what):
+        return pd.read_csv(path)
+
+
 def read_metrics(source) -> dict:
     """An evaluation `metrics.json` (see sonardet.eval.evaluate_files) or the dict; checks the keys used."""
     m = read_json(source)

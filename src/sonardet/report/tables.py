@@ -17,7 +17,7 @@ import pandas as pd
 
 from ..eval.evaluate import threshold_key
 from ..io.atomic import atomic_write_text
-from .inputs import benchmark_summary, count_annotations, read_json, read_metrics
+from .inputs import benchmark_summary, count_annotations, read_csv_file, read_json, read_metrics
 from .study import STUDY, STUDY_SOURCE, study_map
 
 THIS_RUN = "this run"
@@ -413,7 +413,7 @@ def dataset_table(stats_csv) -> pd.DataFrame:
     'count (share %)', scenes (study), objects (study). The study reports 100 scenes (80 train /
     20 test) and 5491 objects in all.
     """
-    src = stats_csv if isinstance(stats_csv, pd.DataFrame) else pd.read_csv(stats_csv)
+    src = stats_csv if isinstance(stats_csv, pd.DataFrame) else read_csv_file(stats_csv, "dataset table")
     classes = [c.removesuffix("_share_pct") for c in src.columns if c.endswith("_share_pct")]
     out = pd.DataFrame({"split": src["split"].astype(str), "scenes": src["scenes"], "objects": src["objects"]})
     if "objects_not_visible" in src.columns:
