@@ -51,6 +51,7 @@ def test_too_many_objects_is_reported_once():
     ({"sensor": {"swath_deg": 1.0}}, "sensor.swath_deg: a 1 deg swath covers a 40 x 40 m scene with"),
     ({"sensor": {"n_beams": 64, "speed_mps": 40.0}, "scenes": {"min_points_visible": 60}},
      "sensor: about"),
+    ({"ablation": {"enabled": True, "n_scenes": 50}}, "ablation.n_scenes: 50 asks for more scenes than the 10"),
 ])
 def test_weak_settings_are_warned_about_once_per_validation(cfg, key):
     with warnings.catch_warnings(record=True) as caught:

@@ -114,8 +114,14 @@ def config_warnings(cfg: dict) -> list[str]:
     """Settings of a valid config (defaults filled in) that run but make the experiment say little, each
     message naming its key: objects so small for the sounding spacing that fewer soundings than
     scenes.min_points_visible fall on them (flagged invisible, left out of the evaluation), a swath so
-    narrow that a scene needs hundreds of survey lines, classes the class mix never draws."""
+    narrow that a scene needs hundreds of survey lines, classes the class mix never draws, ablations
+    asking for more scenes than there are development scenes."""
     sc, out = cfg["scenes"], []
+    n_dev = cfg["split"]["n_dev"]
+    for key in ("ablation", "realism_ablation"):
+        if cfg[key]["enabled"] and cfg[key]["n_scenes"] > n_dev:
+            out.append(f"{key}.n_scenes: {cfg[key]['n_scenes']} asks for more scenes than the {n_dev} development "
+                       f"scenes (split.n_dev); it runs on {n_dev}")
     mix = {c: sc["class_mix"].get(c, 0.0) for c in cfg["classes"]}
     if sum(mix.values()) > 0:
         out += [f"scenes.class_mix.{c}: 0 puts no {c} in any scene; its AP is 0 and lowers every mAP (drop the "
