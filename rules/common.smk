@@ -10,9 +10,11 @@ from snakemake.exceptions import WorkflowError
 # script does the same through workflow_scripts/common.py.
 sys.path.insert(0, os.path.join(workflow.basedir, "src"))
 
+from sonardet import determinism
 from sonardet import methods as method_registry
 from sonardet.config import (
     ConfigError,
+    config_warnings,
     mismatch_test_config,
     realism_effect_config,
     realism_effects,
@@ -24,10 +26,23 @@ from sonardet.survey import enabled_surveys, tile_ids
 from sonardet.seeds import derive_seed
 from sonardet.sim.dataset import make_splits, scene_ids, split_names
 
+# Fixed thread counts and instruction-set paths of the numerical libraries for every job (inherited
+# from this process): the same bytes on another machine of the same kind (README, Reproducibility).
+determinism.apply()
+
+
+def notice(message):
+    """Print a start-up message once per run: job processes parse this file again and stay quiet."""
+    if workflow.is_main_process:
+        print(message, file=sys.stderr)
+
+
 try:
-    _validated = validate_config(config, source="workflow config")
+    _validated = validate_config(config, source="workflow config", warn=False)
 except ConfigError as exc:
     raise WorkflowError(str(exc))
+for _message in config_warnings(_validated):
+    notice(f"sonardet: warning: configuration (workflow config): {_message}")
 config.clear()
 config.update(_validated)
 
@@ -85,11 +100,10 @@ HYBRID = config["hybrid_test"]["enabled"] and os.path.exists(
     config["hybrid_test"]["soundings"]
 )
 if config["hybrid_test"]["enabled"] and not HYBRID:
-    print(
+    notice(
         f"sonardet: hybrid_test.soundings {config['hybrid_test']['soundings']} not found: the "
         "hybrid test set is left out of this run (set hybrid_test.soundings to a real soundings "
-        "table, or hybrid_test.enabled: false to silence this)",
-        file=sys.stderr,
+        "table, or hybrid_test.enabled: false to silence this)"
     )
 if HYBRID:
     DATASETS["hybrid"] = scene_ids(config["hybrid_test"]["n_scenes"])
@@ -290,11 +304,10 @@ def ablation_files():
 
 NOISE = config["noise"]["enabled"] and os.path.exists(config["noise"]["survey"])
 if config["noise"]["enabled"] and not NOISE:
-    print(
+    notice(
         f"sonardet: noise.survey {config['noise']['survey']} not found: the noise "
         "characterisation is left out of this run (set noise.survey to a real survey file, "
-        "or noise.enabled: false to silence this)",
-        file=sys.stderr,
+        "or noise.enabled: false to silence this)"
     )
 
 
@@ -531,7 +544,7 @@ def _manifest_files(value):
 #: Surveys to run: name -> settings (schema defaults filled in); missing files are reported here.
 SURVEYS, _survey_messages = enabled_surveys(config["surveys"])
 for _message in _survey_messages:
-    print(_message, file=sys.stderr)
+    notice(_message)
 #: The method each survey runs (any registered method; its settings from its config section).
 SURVEY_METHOD = {
     s: method_registry.get(v["method"], config) for s, v in SURVEYS.items()

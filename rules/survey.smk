@@ -33,7 +33,7 @@ checkpoint survey_tiles:
     params:
         split=lambda w: {
             k: SURVEYS[w.survey][k]
-            for k in ("crs", "tile_m", "overlap_m", "chunk_points")
+            for k in ("crs", "tile_m", "overlap_m", "chunk_points", "keep_fliers")
         },
     script:
         "../workflow_scripts/survey_tiles.py"

@@ -356,3 +356,74 @@ def test_paper_unknown_score_is_a_clear_error(objects, templates, sensor):
     xyz = survey([], sensor, extent_m=8.0)
     with pytest.raises(ValueError, match="score"):
         detect(xyz, templates, objects, {"score": "best"}, variant="paper")
+
+
+# ------------------------------------------------------------------ time bounds on dense input
+def _dense_noise(extent_m: float = 10.0, n: int = 15000, seed: int = 5) -> np.ndarray:
+    """A flat seabed and a 3 m thick box of uniform noise above it (N points each): shapes everywhere."""
+    rng = np.random.default_rng(seed)
+    ground = rng.uniform([0, 0, SEABED_Z], [extent_m, extent_m, SEABED_Z + 0.01], (n, 3))
+    return np.vstack([ground, rng.uniform([0, 0, SEABED_Z], [extent_m, extent_m, SEABED_Z + 3.0], (n, 3))])
+
+
+def test_dense_pathological_cloud_is_capped_counted_and_logged(objects, templates, caplog):
+    """A cloud of noise: the proposals a round fits are capped (proposal_max_per_round_n), the statistics
+    say how many were left, and every stage logs its counts; the ICP work is bounded by the cap."""
+    import logging
+
+    cap = 3
+    params = {"proposal_max_per_round_n": cap, "proposal_max_rounds_n": 2}
+    with caplog.at_level(logging.INFO, logger="sonardet.detect.model_based"):
+        _, stats = detect(_dense_noise(), templates, objects, params, "ours")
+    assert stats["capped"]["proposals"] > 0 and stats["capped"]["tumbled_rounds"] == 1
+    assert "seabed: 30000 points" in caplog.text and "round 1:" in caplog.text
+    assert "only the 3 correlating best are fitted (proposal_max_per_round_n)" in caplog.text
+    upright = sum(n for k, n in stats["icp_runs_by_kind"].items() if k.startswith("upright"))
+    # Per proposal: at most 2 start heights x n_yaw_init yaws, 4 shifted restarts, then one refit each.
+    assert upright <= 2 * cap * (2 * DEFAULTS["n_yaw_init"] + 4)
+    assert stats["windows"] <= 2 * 2 * cap  # upright proposals and tumbled tries, each capped, per round
+
+
+def test_paper_windows_are_capped(objects, templates, caplog):
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="sonardet.detect.model_based"):
+        _, stats = detect(_dense_noise(), templates, objects, {"window_max_n": 2}, "paper")
+    assert stats["capped"]["windows"] > 0
+    assert stats["icp_runs"] <= len(CLASSES) * 2 * len(templates["reef_ring"].yaw_rad)
+    assert "only the 2 holding the most points are (window_max_n)" in caplog.text
+
+
+def test_caps_that_do_not_bite_change_nothing(objects, templates, sensor):
+    """The default caps are far above what a scene needs: lowering them to what this scene uses gives
+    the same detections, byte for byte."""
+    placed = [(objects["reef_ring"], *place(objects["reef_ring"], 4.0, 5.0, 0.0)),
+              (objects["tetrapod_s"], *place(objects["tetrapod_s"], 9.0, 8.0, 0.4))]
+    xyz = survey(placed, sensor)
+    ref, s = detect(xyz, templates, objects, None, "ours")
+    tight = {"proposal_max_per_round_n": max(s["windows"], 1)}
+    again, s2 = detect(xyz, templates, objects, tight, "ours")
+    assert again == ref and s2["capped"] == {"proposals": 0, "tumbled_rounds": 0}
+
+
+def test_a_sounding_100_km_away_changes_no_detection(objects, templates, sensor):
+    """A scene plus one sounding 100 km off (a survey export's flier): `sonardet detect`'s path (fliers
+    dropped, tiles near the data) gives the detections of the scene alone, byte for byte."""
+    import json
+    import tracemalloc
+
+    from sonardet.survey import detect_survey
+
+    placed = [(objects["reef_cone"], *place(objects["reef_cone"], 5.0, 6.0, 0.0)),
+              (objects["tetrapod_b"], *place(objects["tetrapod_b"], 10.0, 8.0, 0.3))]
+    xyz = survey(placed, sensor) + [5.5e5, 4.18e6, 0.0]
+    detector = ModelBasedDetector(templates, objects)
+    ref, _ = detect_survey(xyz, detector, 40.0, 3.0, 2.7)
+    far = np.vstack([xyz[:100], xyz[0] + [1e5, 0.0, 0.0], xyz[100:]])
+    tracemalloc.start()
+    dets, info = detect_survey(far, detector, 40.0, 3.0, 2.7)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert json.dumps(dets) == json.dumps(ref) and len(ref) == 2
+    assert info["fliers"]["n_points"] == 1 and info["n_tiles"] == 1
+    assert peak < 200e6  # the detector's own working set; no grid over the 100 km box

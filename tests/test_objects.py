@@ -110,3 +110,71 @@ def test_save_load_round_trip(tmp_path, built_objects):
     (tmp_path / "t.json").write_text(json.dumps(bad))
     with pytest.raises(ValueError, match="schema_version"):
         read_object(tmp_path / "t.json")
+
+
+# ------------------------------------------------------------------ meshes as written and read back
+@pytest.mark.parametrize("cls", ["reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s"])
+def test_written_meshes_read_back_watertight_and_manifold(tmp_path, built_objects, cls):
+    """The PLY as written: trimesh (default loading, which merges coincident vertices) and Open3D both
+    call it watertight, no edge has more than two faces, and the JSON's `watertight` says what the file
+    is, not what the in-memory mesh was."""
+    import json
+
+    import open3d as o3d
+    import trimesh
+
+    from sonardet.objects import mesh_file_check, write_object
+
+    ply, js = tmp_path / f"{cls}.ply", tmp_path / f"{cls}.json"
+    meta = write_object(built_objects[cls], 2400.0, ply, js)
+    mesh = trimesh.load(ply)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    assert counts.max() == 2  # every edge shared by exactly two faces: no place where the solid touches itself
+    o3d_mesh = o3d.io.read_triangle_mesh(str(ply))
+    assert o3d_mesh.is_watertight() and o3d_mesh.is_edge_manifold() and o3d_mesh.is_vertex_manifold()
+    assert not o3d_mesh.is_self_intersecting()
+    on_disk = json.loads(js.read_text())
+    assert on_disk["watertight"] is True and meta["watertight"] is True
+    assert on_disk["watertight_trimesh"] and on_disk["watertight_open3d"]
+    assert mesh_file_check(ply)["watertight"] and abs(mesh.volume - on_disk["volume_m3"]) < 1e-9
+
+
+def test_an_open_mesh_is_written_as_not_watertight_with_a_warning(tmp_path, built_objects):
+    import dataclasses
+    import json
+
+    import trimesh
+
+    from sonardet.objects import write_object
+
+    m = built_objects["tetrapod_s"]
+    open_mesh = trimesh.Trimesh(m.mesh.vertices, m.mesh.faces[:-3], process=False)
+    with pytest.warns(UserWarning, match="does not read back watertight"):
+        meta = write_object(dataclasses.replace(m, mesh=open_mesh), 2400.0, tmp_path / "t.ply", tmp_path / "t.json")
+    assert meta["watertight"] is False and json.loads((tmp_path / "t.json").read_text())["watertight"] is False
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage"])
+def test_object_files_damaged(tmp_path, built_objects, damage):
+    from sonardet.io.artifacts import FileReadError
+    from sonardet.objects import read_object, write_object
+
+    def truncate(p):
+        p.write_bytes(p.read_bytes()[: len(p.read_bytes()) // 2])
+
+    def garbage(p):
+        p.write_bytes(np.random.default_rng(0).integers(0, 256, 300, dtype=np.uint8).tobytes())
+
+    ply, js = tmp_path / "reef_ring.ply", tmp_path / "reef_ring.json"
+    write_object(built_objects["reef_ring"], 2400.0, ply, js)
+    hurt = truncate if damage == "truncate" else garbage
+    hurt(ply)
+    with pytest.raises(FileReadError) as exc:
+        read_object(js)
+    assert str(ply) in str(exc.value) and "delete it" in str(exc.value)
+    write_object(built_objects["reef_ring"], 2400.0, ply, js)
+    hurt(js)
+    with pytest.raises(FileReadError) as exc:
+        read_object(js)
+    assert str(js) in str(exc.value) and "delete it" in str(exc.value)

@@ -79,12 +79,12 @@ def _recorded_tiled_inputs(xyz, tile_m, overlap_m):
 def test_survey_settings_take_the_schema_defaults():
     s = survey_settings("line1", {"path": "a.xyz"})
     assert s == {"name": "line1", "path": "a.xyz", "enabled": True, "crs": None, "method": "model_based_ours", "tile_m": 40.0,
-                 "overlap_m": 3.0, "chunk_points": 1_000_000, "all_hypotheses": False}
-    # The defaults are those of `sonardet detect` (tile 40 m, overlap 3 m).
+                 "overlap_m": 3.0, "chunk_points": 1_000_000, "all_hypotheses": False, "keep_fliers": False}
+    # The defaults are those of `sonardet detect` (tile 40 m, overlap 3 m, fliers left out).
     from sonardet.cli import build_parser
 
     args = build_parser().parse_args(["detect", "--input", "a", "--out", "b"])
-    assert (args.tile_m, args.overlap_m) == (s["tile_m"], s["overlap_m"])
+    assert (args.tile_m, args.overlap_m, args.keep_fliers) == (s["tile_m"], s["overlap_m"], s["keep_fliers"])
     with pytest.raises(ValueError, match="surveys.x: needs `path`"):
         survey_settings("x", {})
 

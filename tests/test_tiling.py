@@ -205,16 +205,25 @@ def test_detect_tiled_feeds_each_tile_its_points_and_skips_empty_tiles(caplog):
     tiles = plan_tiles((*xyz[:, :2].min(0), *xyz[:, :2].max(0)), 40.0, 3.0)
     with caplog.at_level(logging.INFO, logger="sonardet.survey.tiling"):
         dets, rows = detect_tiled(xyz, fake_detect, 40.0, 3.0)
-    assert len(rows) == len(tiles) == 4
-    assert [r["skipped"] for r in rows] == [False, True, True, False]
+    # Only the tiles near data are planned: the two between the patches are not even listed.
+    assert len(tiles) == 4 and [r["tile"] for r in rows] == ["t000_000", "t003_000"]
+    assert [r["skipped"] for r in rows] == [False, False]
     assert len(calls) == 2
-    for r, t in zip((rows[0], rows[3]), (tiles[0], tiles[3])):
+    for r, t in zip(rows, (tiles[0], tiles[3])):
         idx = tile_points(xyz, t)
         assert r["n_points"] == len(idx) and r["stats"] == {"n": len(idx)}
     # Each call got its tile's points in the input order (the detector may depend on the order).
     assert np.array_equal(calls[0], xyz[tile_points(xyz, tiles[0])])
     assert len(dets) == 2
-    assert "tile 1/4 t000_000" in caplog.text and "tile 2/4 t001_000: no points, skipped" in caplog.text
+    assert "tile 1/2 t000_000" in caplog.text and "tile 2/2 t003_000" in caplog.text
+    # An empty planned tile (near data, its padded area without points) is skipped and logged.
+    t = np.linspace(0.0, 30.0, 3000)
+    diagonal = np.c_[t, t, np.full_like(t, -11.0)] + UTM  # t002_000 meets the data's cells but holds no point
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="sonardet.survey.tiling"):
+        _, rows = detect_tiled(diagonal, fake_detect, 10.0, 3.0)
+    skipped = [r["tile"] for r in rows if r["skipped"]]
+    assert skipped and f"{skipped[0]}: no points, skipped" in caplog.text
 
 
 def test_detect_tiled_plain_list_and_empty_input():

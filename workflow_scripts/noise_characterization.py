@@ -5,7 +5,7 @@ from common import job
 import json
 
 from sonardet.eval.noise import characterize_noise, simulated_flat_patch, to_json
-from sonardet.io.atomic import atomic_write_text
+from sonardet.io.atomic import atomic_outputs, atomic_write_text
 from sonardet.io.points import read_points
 from sonardet.report import plot_noise
 from sonardet.seeds import derive_seed
@@ -30,7 +30,8 @@ with job(snakemake, "noise_characterization") as log:  # noqa: F821
     sim = characterize_noise(sim_xyz, {"x": [1.0, 9.0], "y": [-1.0, 1.0]}, z_trim=cfg["z_trim"], name="simulated")
     log.info("simulated (range sigma %.1f mm): sigma %.2f mm before, %.2f mm after trimming", 1e3 * sigma,
              1e3 * sim["before"]["std_m"], 1e3 * sim["after"]["std_m"])
-    plot_noise(real[0], smk.output.figure, simulated=sim)
     doc = {"survey": str(smk.input.survey), "crs": cfg["crs"], "z_trim": cfg["z_trim"],
            "real": [to_json(r) for r in real], "simulated": to_json(sim), "simulated_range_sigma_m": sigma}
-    atomic_write_text(smk.output.json, json.dumps(doc, indent=1) + "\n")
+    with atomic_outputs([smk.output.figure, smk.output.json]) as (figure, json_path):  # both or neither
+        plot_noise(real[0], figure, simulated=sim)
+        atomic_write_text(json_path, json.dumps(doc, indent=1) + "\n")

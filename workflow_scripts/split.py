@@ -1,10 +1,9 @@
-"""Write the train/validation/test split and the nested training fractions."""
+"""Write the train/validation/test split and the nested training fractions (all files or none)."""
 
 from common import job
 
-from pathlib import Path
 
-from sonardet.io.atomic import atomic_write_text
+from sonardet.io.atomic import atomic_outputs, atomic_write_text
 from sonardet.sim.dataset import make_splits, scene_ids
 
 with job(snakemake, "split") as log:  # noqa: F821
@@ -12,7 +11,7 @@ with job(snakemake, "split") as log:  # noqa: F821
     sp = smk.params.split
     splits = make_splits(scene_ids(smk.params.n_scenes + sp["n_dev"]), sp["n_test"], sp["n_dev"], sp["fractions"],
                          smk.params.seed)
-    for path in smk.output:
-        name = Path(path).stem
-        atomic_write_text(path, "\n".join(splits[name]) + "\n")
-        log.info("%s: %d scenes", name, len(splits[name]))
+    with atomic_outputs(list(smk.output)) as staged:  # every split file or none
+        for path in staged:
+            atomic_write_text(path, "\n".join(splits[path.stem]) + "\n")
+            log.info("%s: %d scenes", path.stem, len(splits[path.stem]))

@@ -17,7 +17,8 @@ with job(snakemake, "survey_tiles") as log:  # noqa: F821
     try:
         doc = split_survey(smk.input.survey, smk.output.tiles, smk.output.index, survey=survey,
                            tile_m=cfg["tile_m"], overlap_m=cfg["overlap_m"], crs=cfg["crs"],
-                           min_overlap_m=footprint, chunk_points=cfg["chunk_points"])
+                           min_overlap_m=footprint, chunk_points=cfg["chunk_points"],
+                           keep_fliers=cfg["keep_fliers"])
     except ValueError as exc:
         raise ValueError(f"surveys.{survey}: {exc}") from exc
     log.info("%s: %d points, %d tiles (%d x %d, %d with points), origin %s, CRS %s", survey, doc["n_points"],

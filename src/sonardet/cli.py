@@ -142,11 +142,11 @@ def _run_detect(args) -> int:
 
     from . import SCHEMA_VERSION, methods
     from .io.annotations import to_builtin, validate_detections
-    from .io.atomic import atomic_write_text
+    from .io.atomic import atomic_outputs, atomic_write_text, check_writable
     from .io.export import write_detections_csv, write_detections_geojson
     from .io.points import read_points
     from .methods import Resources
-    from .survey import detect_tiled, plan_tiles
+    from .survey import detect_survey, plan_tiles
 
     t0 = time.perf_counter()
     cfg = _config(args)
@@ -160,6 +160,8 @@ def _run_detect(args) -> int:
                                 f"{model}` in the workflow folder or give its file with --model")
     footprint = _footprint_m(objects, classes, cfg)
     plan_tiles((0.0, 0.0, 0.0, 0.0), args.tile_m, args.overlap_m, footprint)  # bad tiling fails before reading
+    outputs = [p for p in (args.out, args.csv, args.geojson) if p is not None]
+    check_writable(outputs)  # an output that cannot be written fails before the detection, not after
     detector = methods.family(method.family).load(method, Resources(
         objects=objects, templates=templates, model_path=model if "model" in method.resources else None,
         threads=args.threads))
@@ -167,19 +169,10 @@ def _run_detect(args) -> int:
     xyz = cloud.xyz
     if len(xyz) == 0:
         raise ValueError(f"{args.input}: no points")
-    lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
-    tiles = plan_tiles((lo[0], lo[1], hi[0], hi[1]), args.tile_m, args.overlap_m, footprint)
-
     t = time.perf_counter()
-    if len(tiles) == 1:
-        dets, _ = detector(xyz)
-        n_tiles = 1
-    else:
-        logging.getLogger("sonardet.detect").info("%s: %d points over %.1f x %.1f m in %d tiles of <= %g m "
-                                                  "(overlap %g m)", args.input, len(xyz), hi[0] - lo[0],
-                                                  hi[1] - lo[1], len(tiles), args.tile_m, args.overlap_m)
-        dets, rows = detect_tiled(xyz, detector, args.tile_m, args.overlap_m, progress=True, min_overlap_m=footprint)
-        n_tiles = sum(not r["skipped"] for r in rows)
+    # Fliers (a few soundings far from the rest) dropped unless --keep-fliers; tiles only near the data.
+    dets, run = detect_survey(xyz, detector, args.tile_m, args.overlap_m, footprint, args.keep_fliers, str(args.input))
+    n_tiles = run["n_tiles"]
     t_detect = time.perf_counter() - t
     n_all = len(dets)
     if not args.all_hypotheses:  # boxes the method accepted as objects (a tail of rejected ones only on request)
@@ -191,12 +184,14 @@ def _run_detect(args) -> int:
     doc = {"schema_version": SCHEMA_VERSION, "scene": args.out.stem, "method": method.name,
            "source": str(args.input), "crs": cloud.crs, "detections": to_builtin(dets)}
     doc = validate_detections(doc, args.out, classes, args.out.stem)
-    atomic_write_text(args.out, json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    if args.csv is not None:
-        write_detections_csv(args.csv, dets, origin_note=f"coordinates: {frame}, as in {args.input.name}; "
-                                                         "yaw_rad about +z")
-    if args.geojson is not None:
-        write_detections_geojson(args.geojson, dets, crs=cloud.crs)
+    with atomic_outputs(outputs) as staged:  # every output or none
+        tmp = dict(zip(outputs, staged))
+        atomic_write_text(tmp[args.out], json.dumps(doc, indent=1, allow_nan=False) + "\n")
+        if args.csv is not None:
+            write_detections_csv(tmp[args.csv], dets, origin_note=f"coordinates: {frame}, as in {args.input.name}; "
+                                                                  "yaw_rad about +z")
+        if args.geojson is not None:
+            write_detections_geojson(tmp[args.geojson], dets, crs=cloud.crs)
     n_acc = sum(bool(d.get("extras", {}).get("accepted", True)) for d in dets)
     kept = "all hypotheses" if args.all_hypotheses else f"{n_all - len(dets)} rejected hypotheses left out"
     print(f"sonardet detect: {args.input.name}: {len(xyz)} points, {n_tiles} tile(s), {len(dets)} detection(s) "
@@ -270,6 +265,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tile overlap in metres, at least the largest object footprint (default: 3)")
     p.add_argument("--crs", default=None,
                    help="CRS of the input coordinates when the file carries none (e.g. EPSG:32610)")
+    p.add_argument("--keep-fliers", action="store_true",
+                   help="keep isolated far soundings (at most 100 soundings more than 100 m from the rest); by "
+                        "default they are left out and reported")
     p.add_argument("--classes", nargs="+", default=None, help="classes to detect (default: the config's classes)")
     p.set_defaults(func=_detect)
     return ap

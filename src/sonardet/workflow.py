@@ -7,12 +7,14 @@ Takes the `snakemake` object duck-typed, so the library imports nothing from Sna
 from __future__ import annotations
 
 import logging
+import os
 import sys
 import time
 import traceback
 from contextlib import contextmanager
 from pathlib import Path
 
+from .determinism import ISA_PINNED, THREAD_VARIABLES
 from .methods import Method, Resources
 from .plugins import load_plugins
 
@@ -27,6 +29,9 @@ def rule_logging(smk, name: str):
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s: %(message)s",
                         handlers=handlers, force=True)
     log = logging.getLogger(f"sonardet.{name}")
+    pinned = {k: os.environ[k] for k in (*THREAD_VARIABLES, *ISA_PINNED) if k in os.environ}
+    log.info("numerical environment (sonardet.determinism): %s",
+             ", ".join(f"{k}={v}" for k, v in pinned.items()) or "not pinned")
     t0 = time.perf_counter()
     try:
         yield log

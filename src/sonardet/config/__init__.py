@@ -11,6 +11,7 @@ stops the run before any job starts.
 from __future__ import annotations
 
 import copy
+import warnings
 from pathlib import Path
 
 import jsonschema
@@ -18,7 +19,7 @@ import yaml
 
 from ..objects import classes
 from ..plugins import PluginError, load_plugins
-from .checks import cross_checks
+from .checks import config_warnings, cross_checks
 from .realism import (
     REALISM_EFFECT_GROUPS,
     mismatch_test_config,
@@ -28,12 +29,17 @@ from .realism import (
 )
 from .schema import read_schema
 
-__all__ = ["REALISM_EFFECT_GROUPS", "ConfigError", "mismatch_test_config", "read_config", "read_schema", "realism_effect_config",
+__all__ = ["REALISM_EFFECT_GROUPS", "ConfigError", "ConfigWarning", "config_warnings", "mismatch_test_config",
+           "read_config", "read_schema", "realism_effect_config",
            "realism_effects", "realism_test_config", "validate_config"]
 
 
 class ConfigError(ValueError):
     """A configuration value is missing, unknown or out of range; the message names the key."""
+
+
+class ConfigWarning(UserWarning):
+    """A configuration that runs but makes the experiment say little; the message names the key."""
 
 
 def _resolve(schema: dict, root: dict) -> dict:
@@ -85,11 +91,13 @@ def _describe(err: jsonschema.ValidationError) -> str:
     return f"{where}: {err.message}"
 
 
-def validate_config(config: dict, source: str = "config") -> dict:
+def validate_config(config: dict, source: str = "config", warn: bool = True) -> dict:
     """Validate `config` against the schema and return a copy with every default filled in.
 
     Imports the config's `plugins` first. Raises ConfigError listing every offending key (dotted
-    path) with the reason and the source.
+    path) with the reason and the source. With `warn`, each of `config_warnings` (settings that run but
+    make the experiment say little, e.g. objects too small for the sounding spacing) is issued once as
+    a :class:`ConfigWarning` (``warnings.warn``) naming the source and the key.
     """
     try:
         load_plugins(dict(config).get("plugins") or [])
@@ -106,6 +114,9 @@ def validate_config(config: dict, source: str = "config") -> dict:
     if problems:
         lines = "\n".join(f"  - {p}" for p in dict.fromkeys(problems))
         raise ConfigError(f"invalid configuration ({source}):\n{lines}\nFix these keys; see config/schema.yaml.")
+    if warn:
+        for msg in dict.fromkeys(config_warnings(cfg)):
+            warnings.warn(ConfigWarning(f"configuration ({source}): {msg}"), stacklevel=2)
     return cfg
 
 
@@ -128,7 +139,7 @@ def _realism_test_problems(cfg: dict) -> list[str]:
     derived["realism_test"] = {"enabled": False}
     derived["realism_ablation"] = {"enabled": False}
     try:
-        validate_config(derived, source="realism_test")
+        validate_config(derived, source="realism_test", warn=False)
     except ConfigError as exc:
         return [line[4:].replace("sensor.realism", "realism_test.sensor")
                 .replace("scenes.realism.burial_m", "realism_test.burial_m")

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import quat_to_matrix
+from ..io.artifacts import read_json_file
 from .bootstrap import bootstrap_map, interval, scene_flags
 from .evaluate import MAX_BOXES_PER_SCENE, evaluate, prepare
 
@@ -158,9 +159,7 @@ def compare_files(scene_jsons, detections: dict, object_jsons, classes, evaluati
                   dont_care: dict | None, n_resamples: int, seed: int, level: float) -> dict:
     """:func:`compare_methods` on files: scene JSONs (ground truth), method -> its detection JSONs on
     those scenes, the object JSONs (up axes of the don't-care rule, symmetry). Errors name the file."""
-    import json
     import math
-    from pathlib import Path
 
     from ..io.annotations import read_detections, read_scene
 
@@ -172,7 +171,7 @@ def compare_files(scene_jsons, detections: dict, object_jsons, classes, evaluati
     for m, paths in detections.items():
         docs = [read_detections(p, classes) for p in paths]
         dets[m] = {d["scene"]: d["detections"] for d in docs}
-    metas = [json.loads(Path(p).read_text(encoding="utf-8")) for p in object_jsons]
+    metas = [read_json_file(p, "object metadata file") for p in object_jsons]
     up = {m["cls"]: np.asarray(m["up_axes"], dtype=np.float64) for m in metas}
     sym = [m["cls"] for m in metas if m["rotationally_symmetric"]]
     periods = {m["cls"]: 2 * math.pi / m["symmetry_order"] for m in metas if m["symmetry_order"] > 1}

@@ -11,7 +11,6 @@ extra cost. `realism_effect_rows` scores the methods of the one-at-a-time realis
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -23,6 +22,7 @@ import numpy as np
 from .. import methods
 from ..eval.evaluate import evaluate
 from ..io.annotations import read_detections, read_scene
+from ..io.artifacts import read_json_file
 from ..io.scenes import read_scene_points
 from ..methods import Method, Resources
 
@@ -85,7 +85,7 @@ def _detections(detection_jsons, classes) -> dict:
 
 
 def _evaluate(gt: dict, dets: dict, classes, evaluation: dict, object_jsons) -> dict:
-    metas = [json.loads(Path(p).read_text()) for p in object_jsons]
+    metas = [read_json_file(p, "object metadata file") for p in object_jsons]
     metas = [m for m in metas if m["cls"] in classes]
     symmetric = [m["cls"] for m in metas if m["rotationally_symmetric"]]
     periods = {m["cls"]: 2 * math.pi / m["symmetry_order"] for m in metas if m["symmetry_order"] > 1}

@@ -30,6 +30,7 @@ from typing import Iterable
 import numpy as np
 
 from .. import SCHEMA_VERSION
+from .artifacts import read_json_file
 from .atomic import atomic_write_text
 
 SCENE_KEYS = ("schema_version", "scene", "seed", "config_hash", "extent", "objects")
@@ -196,16 +197,13 @@ def validate_detections(doc, source="<detections>", classes=None, expected_scene
     return out
 
 
-def _read_json(path) -> dict:
+def _read_json(path, what: str) -> dict:
+    """The JSON document of `path`; a missing file is an AnnotationError, a damaged one (truncated, not
+    UTF-8, not JSON) a FileReadError naming the file, the line and the fix (both ValueErrors)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise AnnotationError(f"{path}: file not found") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as e:
-        raise AnnotationError(f"{path}: not valid JSON ({e})") from None
+    if not path.exists():
+        raise AnnotationError(f"{path}: file not found")
+    return read_json_file(path, what)
 
 
 def _expected(path, expected_scene, check_filename: bool):
@@ -220,7 +218,7 @@ def read_scene(path, classes=None, expected_scene: str | None = None, check_file
     The scene id must equal `expected_scene` if given, else the file-name stem (unless check_filename is
     False). Objects keep their `visible` flag; evaluation drops invisible ones.
     """
-    return validate_scene(_read_json(path), path, classes, _expected(path, expected_scene, check_filename))
+    return validate_scene(_read_json(path, "scene annotations file"), path, classes, _expected(path, expected_scene, check_filename))
 
 
 def read_detections(path, classes=None, expected_scene: str | None = None, check_filename: bool = True) -> dict:
@@ -229,7 +227,7 @@ def read_detections(path, classes=None, expected_scene: str | None = None, check
     The scene id is checked as in `read_scene`. Returns the normalized document (scores as float,
     `extras` present on every detection).
     """
-    return validate_detections(_read_json(path), path, classes, _expected(path, expected_scene, check_filename))
+    return validate_detections(_read_json(path, "detections file"), path, classes, _expected(path, expected_scene, check_filename))
 
 
 def to_builtin(x):

@@ -13,7 +13,7 @@ Annotations file: the scene document of ``sonardet.io.annotations`` (schema_vers
 config_hash, extent, objects with pose, box, n_points, visible, and whatever else the simulator
 records), written as ``json.dumps(meta, indent=1)``.
 
-:func:`write_scene` validates both before it writes either (each file atomically); :func:`read_scene_points`
+:func:`write_scene` validates both before it writes either (both files or neither); :func:`read_scene_points`
 reads the soundings and :func:`read_scene` (re-exported from ``sonardet.io.annotations``) the validated
 annotations. Reading a scene needs numpy only: this module imports neither the simulator (MuJoCo,
 Open3D, trimesh) nor pandas.
@@ -28,7 +28,8 @@ from collections.abc import Mapping
 import numpy as np
 
 from sonardet.io.annotations import read_scene, validate_scene
-from sonardet.io.atomic import atomic_path, atomic_write_text
+from sonardet.io.artifacts import FileReadError, read_npz
+from sonardet.io.atomic import atomic_outputs, atomic_write_text
 
 __all__ = ["SOUNDING_FIELDS", "read_scene", "read_scene_points", "write_scene"]
 
@@ -41,20 +42,23 @@ def read_scene_points(path: str | os.PathLike) -> dict:
     scene frame and the per-sounding arrays (``ping``, ``beam``, ``line``, ``label``) as stored.
 
     Validates shapes, dtype and finiteness of ``xyz`` and the lengths of the per-sounding arrays;
-    errors (ValueError) name the file.
+    errors (``sonardet.io.artifacts.FileReadError``, a ValueError) name the file, the entry and the fix
+    (a truncated or damaged file: delete it and rerun the step that writes it).
     """
-    with np.load(path, allow_pickle=False) as z:
-        out = {k: z[k] for k in z.files}
-    xyz = out.get("xyz")
-    if xyz is None or xyz.ndim != 2 or xyz.shape[1] != 3:
-        raise ValueError(f"{path}: 'xyz' must be an (N,3) array")
+    what = "scene soundings file"
+    out = read_npz(path, what, required=("xyz",))
+    xyz = out["xyz"]
+    fix = f"not a valid {what}: delete it and rerun the step that writes it"
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise FileReadError(f"{path}: 'xyz' must be an (N,3) array, found shape {xyz.shape}; {fix}")
     if xyz.dtype != np.float64:
-        raise ValueError(f"{path}: 'xyz' must be float64, found {xyz.dtype}")
+        raise FileReadError(f"{path}: 'xyz' must be float64, found {xyz.dtype}; {fix}")
     if not np.all(np.isfinite(xyz)):
-        raise ValueError(f"{path}: 'xyz' holds NaN/Inf at row {int(np.flatnonzero(~np.isfinite(xyz).all(1))[0])}")
+        row = int(np.flatnonzero(~np.isfinite(xyz).all(1))[0])
+        raise FileReadError(f"{path}: 'xyz' holds NaN/Inf at row {row}; {fix}")
     for k in SOUNDING_FIELDS:
         if k in out and len(out[k]) != len(xyz):
-            raise ValueError(f"{path}: '{k}' has {len(out[k])} entries for {len(xyz)} points")
+            raise FileReadError(f"{path}: '{k}' has {len(out[k])} entries for {len(xyz)} points; {fix}")
     return out
 
 
@@ -93,7 +97,8 @@ def _check_soundings(parts: dict, npz_path) -> None:
 
 
 def write_scene(scene, npz_path: str | os.PathLike, json_path: str | os.PathLike) -> None:
-    """Write a scene's soundings (``npz_path``) and annotations (``json_path``), each atomically.
+    """Write a scene's soundings (``npz_path``) and annotations (``json_path``), both or neither
+    (``sonardet.io.atomic.atomic_outputs``).
 
     ``scene``: a ``sonardet.sim.scene.Scene`` or any object or mapping with ``xyz`` ((N, 3) float64,
     metres, scene frame), ``ping``, ``beam``, ``line``, ``label`` ((N,) integer arrays) and ``meta`` (the
@@ -106,7 +111,7 @@ def write_scene(scene, npz_path: str | os.PathLike, json_path: str | os.PathLike
     parts = _parts(scene)
     _check_soundings(parts, npz_path)
     validate_scene(parts["meta"], json_path)
-    with atomic_path(npz_path) as tmp:
-        with open(tmp, "wb") as fh:
+    with atomic_outputs([npz_path, json_path]) as (npz_tmp, json_tmp):
+        with open(npz_tmp, "wb") as fh:
             np.savez(fh, **{k: parts[k] for k in ("xyz", *SOUNDING_FIELDS)})
-    atomic_write_text(json_path, json.dumps(parts["meta"], indent=1))
+        atomic_write_text(json_tmp, json.dumps(parts["meta"], indent=1))

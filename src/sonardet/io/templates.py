@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sonardet import SCHEMA_VERSION
+from sonardet.io.artifacts import FileReadError, read_npz, reading
 from sonardet.io.atomic import atomic_path
 
 __all__ = ["TemplateViews", "read_templates", "write_templates"]
@@ -49,6 +50,11 @@ class TemplateViews:
         return len(self.yaw_rad)
 
 
+#: The entries of a template file (besides schema_version).
+_TEMPLATE_ENTRIES = ("cls", "xyz", "view", "ping", "beam", "yaw_rad", "direction", "offset_m", "pose_t", "pose_q",
+                     "scan_params")
+
+
 def write_templates(path: str | os.PathLike, tv: TemplateViews) -> None:
     """Write template views to an .npz (atomic): points in the canonical frame (m), per-view yaw (rad),
     offsets and poses (m), scan parameters as JSON (see the module docstring)."""
@@ -63,13 +69,22 @@ def write_templates(path: str | os.PathLike, tv: TemplateViews) -> None:
 
 def read_templates(path: str | os.PathLike) -> TemplateViews:
     """Read template views written by :func:`write_templates` (canonical frame, metres and radians);
-    rejects other schema versions (ValueError naming the file)."""
-    with np.load(path, allow_pickle=False) as z:
-        version = int(z["schema_version"]) if "schema_version" in z else None
-        if version != SCHEMA_VERSION:
-            raise ValueError(f"{path}: schema_version {version} is not {SCHEMA_VERSION}; rebuild the templates")
-        return TemplateViews(
-            cls=str(z["cls"]), xyz=z["xyz"], view=z["view"], ping=z["ping"], beam=z["beam"],
-            yaw_rad=z["yaw_rad"], direction=z["direction"], offset_m=z["offset_m"], pose_t=z["pose_t"],
-            pose_q=z["pose_q"], scan_params=json.loads(str(z["scan_params"])),
-        )
+    rejects other schema versions, truncated or damaged files and missing entries
+    (``sonardet.io.artifacts.FileReadError``, a ValueError naming the file and the entry)."""
+    what = "template scan file"
+    z = read_npz(path, what, required=("schema_version",))
+    version = int(z["schema_version"])
+    if version != SCHEMA_VERSION:
+        raise FileReadError(f"{path}: schema_version {version} is not {SCHEMA_VERSION}; rebuild the templates "
+                            "(delete the file and rerun the step that writes it)")
+    missing = [k for k in _TEMPLATE_ENTRIES if k not in z]
+    if missing:
+        raise FileReadError(f"{path}: no entry {', '.join(map(repr, missing))}; not a complete {what}: delete it and "
+                            "rerun the step that writes it")
+    with reading(path, what, member="scan_params"):
+        scan_params = json.loads(str(z["scan_params"]))
+    return TemplateViews(
+        cls=str(z["cls"]), xyz=z["xyz"], view=z["view"], ping=z["ping"], beam=z["beam"],
+        yaw_rad=z["yaw_rad"], direction=z["direction"], offset_m=z["offset_m"], pose_t=z["pose_t"],
+        pose_q=z["pose_q"], scan_params=scan_params,
+    )

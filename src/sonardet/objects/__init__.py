@@ -1,7 +1,7 @@
 """Object classes (registry of specs), their procedural meshes and the on-disk object files."""
 
 from . import classes
-from .catalog import ObjectInfo, canonical_box, read_object, metadata, object_info, write_object
+from .catalog import ObjectInfo, canonical_box, mesh_file_check, metadata, object_info, read_object, write_object
 from .classes import ClassSpec, build_object, footprint_radius_m
 from .meshes import SYMMETRY_CONTINUOUS, ObjectModel
 
@@ -15,6 +15,7 @@ __all__ = [
     "classes",
     "footprint_radius_m",
     "read_object",
+    "mesh_file_check",
     "metadata",
     "object_info",
     "write_object",

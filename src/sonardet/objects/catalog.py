@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -11,7 +12,8 @@ import trimesh
 
 from .. import SCHEMA_VERSION
 from ..geometry import box_from_points, quat_multiply, quat_to_matrix, yaw_of_matrix
-from ..io.atomic import atomic_write_bytes, atomic_write_text
+from ..io.artifacts import FileReadError, read_json_file, reading, rebuild_hint
+from ..io.atomic import atomic_outputs, atomic_write_text
 from . import classes
 from .meshes import SYMMETRY_CONTINUOUS, ObjectModel
 
@@ -105,40 +107,88 @@ def _jsonable(x):
     return x
 
 
+def mesh_file_check(ply_path) -> dict:
+    """How a mesh file reads back: {watertight (both readers agree it is closed), watertight_trimesh
+    (trimesh.load with its default vertex merging), watertight_open3d (Open3D's reader and
+    `is_watertight`: edge- and vertex-manifold, no self-intersection), n_vertices, n_faces} (counts
+    after trimesh's merge)."""
+    import open3d as o3d
+
+    mesh = trimesh.load(ply_path, force="mesh")
+    o3d_mesh = o3d.io.read_triangle_mesh(str(ply_path))
+    tm_ok, o3d_ok = bool(mesh.is_watertight), bool(o3d_mesh.is_watertight())
+    return {"watertight": tm_ok and o3d_ok, "watertight_trimesh": tm_ok, "watertight_open3d": o3d_ok,
+            "n_vertices": int(len(mesh.vertices)), "n_faces": int(len(mesh.faces))}
+
+
+def _write_ply(path, mesh: trimesh.Trimesh) -> None:
+    """The mesh as binary PLY with float64 vertices (Open3D's writer; trimesh's writes float32, which
+    moves vertices by up to 6e-8 m and can make near-coplanar facets cross)."""
+    import open3d as o3d
+
+    o3d_mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.array(mesh.vertices, dtype=np.float64)),
+                                         o3d.utility.Vector3iVector(np.array(mesh.faces, dtype=np.int32)))
+    if not o3d.io.write_triangle_mesh(str(path), o3d_mesh, write_ascii=False, compressed=False,
+                                      write_vertex_normals=False, write_vertex_colors=False,
+                                      write_triangle_uvs=False, print_progress=False):
+        raise OSError(f"{path}: Open3D could not write the mesh")
+
+
 def write_object(model: ObjectModel, density_kg_m3: float, ply_path, json_path) -> dict:
-    """Write the mesh (binary PLY) and its metadata (JSON), each atomically. Returns the metadata."""
+    """Write the mesh (binary PLY, float64 vertices, canonical frame, m) and its metadata (JSON), both or
+    neither (`sonardet.io.atomic.atomic_outputs`). The metadata's `watertight` (and
+    `watertight_trimesh`, `watertight_open3d`) are measured on the PLY as written and read back
+    (`mesh_file_check`); a mesh that does not read back closed is written with a warning. Returns the
+    metadata."""
     meta = metadata(model, density_kg_m3)
-    atomic_write_bytes(ply_path, trimesh.exchange.ply.export_ply(model.mesh, encoding="binary"))
-    atomic_write_text(json_path, json.dumps(meta, indent=1))
+    with atomic_outputs([ply_path, json_path]) as (ply_tmp, json_tmp):
+        _write_ply(ply_tmp, model.mesh)
+        check = mesh_file_check(ply_tmp)
+        meta.update(watertight=check["watertight"], watertight_trimesh=check["watertight_trimesh"],
+                    watertight_open3d=check["watertight_open3d"])
+        if not check["watertight"]:
+            warnings.warn(f"{ply_path}: the {model.cls} mesh does not read back watertight (trimesh "
+                          f"{check['watertight_trimesh']}, Open3D {check['watertight_open3d']}); its volume and "
+                          "mass are unreliable", stacklevel=2)
+        atomic_write_text(json_tmp, json.dumps(meta, indent=1))
     return meta
 
 
 def read_object(json_path, ply_path=None) -> ObjectInfo:
-    """Read an object written by :func:`write_object` (PLY beside the JSON unless given)."""
+    """Read an object written by :func:`write_object` (PLY beside the JSON unless given). A missing,
+    truncated or damaged file raises an error naming it (``sonardet.io.artifacts.FileReadError``, a
+    ValueError, or FileNotFoundError) with the fix."""
     json_path = Path(json_path)
     ply_path = Path(ply_path) if ply_path else json_path.with_suffix(".ply")
-    meta = json.loads(json_path.read_text())
-    if meta.get("schema_version") != SCHEMA_VERSION:
-        raise ValueError(
-            f"{json_path}: schema_version {meta.get('schema_version')!r} is not {SCHEMA_VERSION}; "
+    meta = read_json_file(json_path, "object metadata file")
+    if not isinstance(meta, dict) or meta.get("schema_version") != SCHEMA_VERSION:
+        version = meta.get("schema_version") if isinstance(meta, dict) else None
+        raise FileReadError(
+            f"{json_path}: schema_version {version!r} is not {SCHEMA_VERSION}; "
             "rebuild it with `snakemake results/objects/<cls>.json`"
         )
-    missing = [k for k in ("up_axes", "tumble") if k not in meta]
+    missing = [k for k in _OBJECT_KEYS if k not in meta]
     if missing:
-        raise ValueError(f"{json_path}: no {', '.join(missing)} (written by an older sonardet); rebuild it with "
-                         "`snakemake results/objects/<cls>.json`")
-    mesh = trimesh.load(ply_path, force="mesh", process=False)
+        raise FileReadError(f"{json_path}: no {', '.join(missing)} (written by an older sonardet, or damaged); "
+                            f"{rebuild_hint(json_path)}")
+    with reading(ply_path, "object mesh (PLY)"):
+        mesh = trimesh.load(ply_path, force="mesh", process=False)
     if len(mesh.faces) == 0:
-        raise ValueError(f"{ply_path}: mesh has no faces")
-    return ObjectInfo(
-        cls=meta["cls"],
-        mesh=mesh,
-        convex_parts=[np.asarray(p, dtype=np.float64) for p in meta["convex_parts"]],
-        mass_kg=float(meta["mass_kg"]),
-        volume_m3=float(meta["volume_m3"]),
-        symmetry_order=int(meta["symmetry_order"]),
-        extents_m=np.asarray(meta["extents_m"], dtype=np.float64),
-        up_axes=np.asarray(meta["up_axes"], dtype=np.float64).reshape(-1, 3),
-        tumble=dict(meta["tumble"]),
-        spec=dict(meta.get("spec") or {}),
-    )
+        raise FileReadError(f"{ply_path}: mesh has no faces; {rebuild_hint(ply_path)}")
+    with reading(json_path, "object metadata file"):
+        return ObjectInfo(
+            cls=meta["cls"],
+            mesh=mesh,
+            convex_parts=[np.asarray(p, dtype=np.float64) for p in meta["convex_parts"]],
+            mass_kg=float(meta["mass_kg"]),
+            volume_m3=float(meta["volume_m3"]),
+            symmetry_order=int(meta["symmetry_order"]),
+            extents_m=np.asarray(meta["extents_m"], dtype=np.float64),
+            up_axes=np.asarray(meta["up_axes"], dtype=np.float64).reshape(-1, 3),
+            tumble=dict(meta["tumble"]),
+            spec=dict(meta.get("spec") or {}),
+        )
+
+
+#: Keys of an object's metadata that `read_object` needs.
+_OBJECT_KEYS = ("cls", "convex_parts", "mass_kg", "volume_m3", "symmetry_order", "extents_m", "up_axes", "tumble")

@@ -141,16 +141,24 @@ def build_object(name: str, objects_cfg: dict) -> ObjectModel:
 
 
 @functools.lru_cache(maxsize=64)
-def _footprint(name: str, objects_json: str) -> float:
-    model = build_object(name, json.loads(objects_json))
-    return float(np.max(np.hypot(*np.asarray(model.mesh.vertices)[:, :2].T)))
+def _coarse_size(name: str, objects_json: str) -> tuple[float, float]:
+    v = np.asarray(build_object(name, json.loads(objects_json)).mesh.vertices)
+    return float(np.max(np.hypot(*v[:, :2].T))), float(np.ptp(v[:, 2]))
+
+
+def _coarse_json(objects_cfg: dict) -> str:
+    return json.dumps({**objects_cfg, "sections": 16, "holes": False}, sort_keys=True, default=float)
 
 
 def footprint_radius_m(name: str, objects_cfg: dict) -> float:
     """Largest horizontal distance (m) of the class's mesh from its axis, measured on a coarse build
     (16 facets per circle, no holes; within 1 cm of the full mesh). Cached per parameters."""
-    coarse = {**objects_cfg, "sections": 16, "holes": False}
-    return _footprint(name, json.dumps(coarse, sort_keys=True, default=float))
+    return _coarse_size(name, _coarse_json(objects_cfg))[0]
+
+
+def height_m(name: str, objects_cfg: dict) -> float:
+    """Height (m) of the class's mesh in its resting pose, from the coarse build of `footprint_radius_m`."""
+    return _coarse_size(name, _coarse_json(objects_cfg))[1]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -4,8 +4,13 @@ the dispatch by class name: :mod:`sonardet.objects.classes`).
 Every mesh is built in its canonical frame: z up, the vertical symmetry axis (through the tetrapod's
 hub, the cone's and the ring's axis) at x = y = 0, the lowest point at z = 0, canonical yaw 0, and
 it stands in its resting pose (tetrapod on three legs, cone and ring on their base). Dimensions in
-metres. Solids are built from primitives with exact booleans (manifold3d through trimesh), which
-always return closed 2-manifolds; trimesh alone cannot guarantee that for boolean results.
+metres. Solids are built from primitives with exact booleans (manifold3d), which always return closed
+2-manifolds; trimesh alone cannot guarantee that for boolean results. The booleans run in float64
+(manifold3d's ``Mesh64``) and the cutters are united before they are subtracted: in float32 (trimesh's
+manifold engine) the union of legs and hub and the cut-outs left places where the solid touches itself
+along an edge, a topological 2-manifold only while the coincident vertices are kept apart (edges of four
+faces once a reader merges them); and subtracting overlapping cutters as one concatenated mesh gave
+manifold3d an invalid (self-intersecting) operand.
 
 Each builder returns an :class:`ObjectModel`: the mesh, the convex parts used by the physics engine
 (each a vertex array whose convex hull is part of the solid), the specification volume it must match
@@ -16,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import manifold3d
 import numpy as np
 import trimesh
 
@@ -48,14 +54,35 @@ def _align_z_to(direction) -> np.ndarray:
     return trimesh.geometry.align_vectors([0.0, 0.0, 1.0], d)
 
 
+def _to_manifold(mesh: trimesh.Trimesh) -> manifold3d.Manifold:
+    """A closed trimesh as a manifold3d solid, in float64 (manifold3d's Mesh64)."""
+    solid = manifold3d.Manifold(manifold3d.Mesh64(
+        vert_properties=np.ascontiguousarray(mesh.vertices, dtype=np.float64),
+        tri_verts=np.ascontiguousarray(mesh.faces, dtype=np.uint64)))
+    if solid.status() != manifold3d.Error.NoError:
+        raise ValueError(f"mesh primitive is not a closed 2-manifold ({solid.status()})")
+    return solid
+
+
+def _from_manifold(solid: manifold3d.Manifold) -> trimesh.Trimesh:
+    """The triangle mesh of a manifold3d solid (float64 vertices, faces as manifold3d gives them)."""
+    out = solid.to_mesh64()
+    # Copies: manifold3d's arrays are read-only views, and Open3D refuses read-only input.
+    return trimesh.Trimesh(vertices=np.array(out.vert_properties, dtype=np.float64)[:, :3].copy(),
+                           faces=np.array(out.tri_verts, dtype=np.int64), process=False)
+
+
 def _union(meshes: list[trimesh.Trimesh]) -> trimesh.Trimesh:
-    return trimesh.boolean.union(meshes, engine="manifold")
+    """Union of closed meshes in float64 (manifold3d batch boolean)."""
+    return _from_manifold(manifold3d.Manifold.batch_boolean([_to_manifold(m) for m in meshes], manifold3d.OpType.Add))
 
 
 def _difference(a: trimesh.Trimesh, cutters: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+    """`a` minus the union of the cutters (which may overlap one another), in float64."""
     if not cutters:
         return a
-    return trimesh.boolean.difference([a, trimesh.util.concatenate(cutters)], engine="manifold")
+    cut = manifold3d.Manifold.batch_boolean([_to_manifold(m) for m in cutters], manifold3d.OpType.Add)
+    return _from_manifold(_to_manifold(a) - cut)
 
 
 def tetrapod_leg_directions() -> np.ndarray:
@@ -143,6 +170,23 @@ def _radial_hole(radius: float, centre_r: float, z: float, angle: float, axis_rz
     return cyl
 
 
+#: Bands the cone's slant walls are split into (rings of vertices on the same surface). Without them
+#: each wall facet is one quad from base to top, and the boolean triangulates a facet pierced by holes
+#: of three rows into slivers spanning the rows; Open3D's triangle-triangle test calls such coplanar
+#: slivers self-intersecting (its `is_watertight` then fails) although the solid is closed.
+_CONE_WALL_BANDS = 8
+
+
+def _split_slopes(profile: np.ndarray, n: int) -> np.ndarray:
+    """A closed (r, z) profile with every non-horizontal edge split into `n` equal segments (the same
+    polygon, more vertices)."""
+    pts = []
+    for a, b in zip(profile[:-1], profile[1:]):
+        k = n if abs(b[1] - a[1]) > 0 else 1
+        pts += [a + (b - a) * i / k for i in range(k)]
+    return np.array(pts + [profile[-1]])
+
+
 def build_reef_cone(height_m: float, base_diameter_m: float, top_diameter_m: float, wall_m: float,
                     n_holes: int, hole_diameter_m: tuple[float, float], holes: bool, hole_seed: int,
                     sections: int = 96) -> ObjectModel:
@@ -161,7 +205,7 @@ def build_reef_cone(height_m: float, base_diameter_m: float, top_diameter_m: flo
             "increase objects.reef_cone.top_diameter_m or reduce wall_m"
         )
     profile = np.array([[rb - t_h, 0.0], [rb, 0.0], [rt, height_m], [rt - t_h, height_m], [rb - t_h, 0.0]])
-    shell = trimesh.creation.revolve(profile, sections=sections)
+    shell = trimesh.creation.revolve(_split_slopes(profile, _CONE_WALL_BANDS), sections=sections)
     # Pappus: volume = 2 pi * area * centroid radius of the profile (a trapezoid, here a parallelogram).
     spec_volume = 2 * np.pi * t_h * height_m * (0.5 * (rb + rt) - 0.5 * t_h)
     mesh = shell

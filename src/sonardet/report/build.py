@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..io.atomic import atomic_outputs
 from .figures import (
     image_is_informative,
     plot_3d_poses,
@@ -35,6 +36,7 @@ from .inputs import read_json
 from .study import STUDY_REAL_SONAR, STUDY_SOURCE
 from .summary import machine_info, write_results_readme
 from .tables import (
+    TABLE_SUFFIXES,
     breakdown_table,
     comparison_table,
     dataset_table,
@@ -64,8 +66,8 @@ def _with_real_sonar(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def _ablation_table(ablation: dict) -> pd.DataFrame:
-    rows = [json.loads(Path(p).read_text()) for p in ablation["points"]]
-    ref = json.loads(Path(ablation["reference"]).read_text())
+    rows = [read_json(p) for p in ablation["points"]]
+    ref = read_json(ablation["reference"])
     ab = pd.DataFrame(ref + rows)
     ab["default"] = ab.get("default", False).fillna(False).astype(bool)
     ab["params"] = ab["params"].map(lambda d: json.dumps(d, separators=(",", ":")) if d else "")
@@ -75,7 +77,7 @@ def _ablation_table(ablation: dict) -> pd.DataFrame:
 
 
 def _noise_table(noise_json) -> pd.DataFrame:
-    doc = json.loads(Path(noise_json).read_text())
+    doc = read_json(noise_json)
     rows = []
     for r, src in [(r, "real survey") for r in doc["real"]] + [(doc["simulated"], "simulator")]:
         rows.append({"patch": r["name"], "data": src, "points": r["n_points"], "slope (deg)": r["plane"]["slope_deg"],
@@ -167,7 +169,7 @@ def build_tables(man: dict) -> dict[str, pd.DataFrame]:
 
 def _busiest(scene_jsons: dict, scenes) -> str:
     """The scene with the most objects (ties: the last id): it shows the detectors at their busiest."""
-    n_obj = {s: len(json.loads(Path(scene_jsons[s]).read_text())["objects"]) for s in scenes}
+    n_obj = {s: len(read_json(scene_jsons[s])["objects"]) for s in scenes}
     return max(scenes, key=lambda s: (n_obj[s], s))
 
 
@@ -210,15 +212,28 @@ def build_figures(man: dict, tables: dict, fdir) -> dict[str, Path]:
     return out
 
 
+#: The figures `build_figures` draws itself (each `{name}.png` in the figures folder), in its order.
+DRAWN_FIGURES = ("topview", "poses3d", "pr_curves", "dataset_example", "loss_curves", "pareto", "hybrid_example")
+
+
 def write_report(man: dict, tables_dir, figures_dir, readme) -> tuple[dict, dict]:
-    """Write the tables (each as csv, md, tex), the figures and the summary README; returns (tables,
-    figures). A figure that comes out blank is an error."""
+    """Write the tables (each as csv, md, tex), the figures and the summary README, all or none
+    (`sonardet.io.atomic.atomic_outputs`: a failing figure leaves the previous report untouched);
+    returns (tables, figures), figures as their final paths. A figure that comes out blank is an error."""
+    tables_dir, figures_dir, readme = Path(tables_dir), Path(figures_dir), Path(readme)
     tables = build_tables(man)
-    for name, df in tables.items():
-        write_table(df, Path(tables_dir) / name, caption=man.get("captions", {}).get(name))
-    figures = build_figures(man, tables, figures_dir)
-    for name, path in figures.items():
-        if not image_is_informative(path):
-            raise RuntimeError(f"figure {name} ({path}) came out blank")
-    write_results_readme(readme, tables, figures, dict(man["config_info"]), machine_info(), title="sonardet results")
-    return tables, figures
+    table_files = [tables_dir / f"{name}{ext}" for name in tables for ext in TABLE_SUFFIXES]
+    figure_files = [figures_dir / f"{name}.png" for name in DRAWN_FIGURES if name in man["figures"]]
+    with atomic_outputs(table_files + figure_files + [readme]) as staged:
+        staged_tables = staged[0].parent if table_files else tables_dir
+        for name, df in tables.items():
+            write_table(df, staged_tables / name, caption=man.get("captions", {}).get(name))
+        staged_figures = staged[len(table_files)].parent if figure_files else figures_dir
+        figures = build_figures(man, tables, staged_figures)
+        for name, path in figures.items():
+            if not image_is_informative(path):
+                raise RuntimeError(f"figure {name} ({figures_dir / Path(path).name}) came out blank")
+        final = {n: figures_dir / p.name if p.parent == staged_figures else p for n, p in figures.items()}
+        write_results_readme(staged[-1], tables, final, dict(man["config_info"]), machine_info(),
+                             title="sonardet results", link_dir=readme.parent)
+    return tables, final

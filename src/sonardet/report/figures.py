@@ -13,7 +13,7 @@ import pandas as pd
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 
-from .inputs import read_pr_curves
+from .inputs import read_csv_file, read_pr_curves
 from .scene_figures import plot_3d_poses, plot_dataset_example, plot_topview
 from .style import OKABE_ITO, method_family, method_style, new_figure, write_figure
 
@@ -89,7 +89,7 @@ def plot_loss_curves(loss_csvs: dict, out_png) -> Path:
     `models/sasa_{f}/loss.csv` path or DataFrame with columns epoch, loss, ... Returns out_png."""
     frames = {}
     for k, src in sorted(loss_csvs.items(), key=lambda kv: float(_fraction_label(kv[0]))):
-        df = src if isinstance(src, pd.DataFrame) else pd.read_csv(src)
+        df = src if isinstance(src, pd.DataFrame) else read_csv_file(src, "loss curve (loss.csv)")
         if "epoch" not in df.columns or "loss" not in df.columns:
             raise ValueError(f"{src}: loss.csv needs columns 'epoch' and 'loss', has {list(df.columns)}")
         frames[_fraction_label(k)] = df

@@ -6,7 +6,6 @@ figure functions can be called from a workflow (paths) as well as from a noteboo
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -14,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from .. import SCHEMA_VERSION
+from ..io.artifacts import read_json_file, read_npz, reading
 
 PathLike = str | os.PathLike
 
@@ -23,12 +23,17 @@ def read_json(source) -> dict:
     if isinstance(source, dict):
         return source
     path = Path(source)
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: file not found") from None
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not valid JSON ({e})") from None
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: file not found")
+    return read_json_file(path, "result file")
+
+
+def read_csv_file(path, what: str) -> pd.DataFrame:
+    """A CSV table (pandas), errors (truncated, not CSV, not UTF-8) naming the file and the fix."""
+    if not Path(path).exists():
+        raise FileNotFoundError(f"{path}: file not found ({what})")
+    with reading(path, what):
+        return pd.read_csv(path)
 
 
 def read_metrics(source) -> dict:
@@ -48,8 +53,7 @@ def read_metrics(source) -> dict:
 def read_pr_curves(path) -> dict[str, np.ndarray]:
     """PR curves `.npz` written by sonardet.eval.evaluate.write_pr_curves: classes (C,), thresholds_m
     (T,), recall (101,), precision and confidence (C, T, 101)."""
-    with np.load(path, allow_pickle=False) as z:
-        out = {k: z[k] for k in z.files}
+    out = read_npz(path, "PR curves file")
     missing = [k for k in ("classes", "thresholds_m", "recall", "precision") if k not in out]
     if missing:
         raise ValueError(f"{path}: missing array(s) {missing}; expected pr_curves.npz from evaluate_files")
@@ -58,7 +62,8 @@ def read_pr_curves(path) -> dict[str, np.ndarray]:
 
 def read_benchmark(path) -> dict:
     """One Snakemake benchmark `.tsv` (one row: s, h:m:s, max_rss (MB), ...) as a dict of its first row."""
-    df = pd.read_csv(path, sep="\t")
+    with reading(path, "Snakemake benchmark file"):
+        df = pd.read_csv(path, sep="\t")
     if len(df) == 0 or "s" not in df.columns:
         raise ValueError(f"{path}: expected a Snakemake benchmark file with a header and a row (column 's')")
     return df.iloc[0].to_dict()

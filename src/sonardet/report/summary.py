@@ -73,10 +73,11 @@ def _kv_lines(d: dict) -> list[str]:
 
 
 def write_results_readme(out_md, tables: dict, figures: dict, config_info: dict, machine_info: dict,
-                         title: str = "sonardet results") -> Path:
+                         title: str = "sonardet results", link_dir=None) -> Path:
     """Write a one-page Markdown summary atomically: the config (e.g. name, hash), the machine (see
     `machine_info()`), each table (name -> DataFrame) as a Markdown table, and each figure (name ->
-    PNG path) as an image link relative to the folder of out_md. Returns out_md."""
+    PNG path) as an image link relative to `link_dir` (default: the folder of out_md; give the final
+    folder when out_md is a staged file). Returns out_md."""
     out_md = Path(out_md)
     lines = [f"# {title}", "", "## Configuration", "", *_kv_lines(config_info), "", "## Machine", "",
              *_kv_lines(machine_info), ""]
@@ -86,7 +87,7 @@ def write_results_readme(out_md, tables: dict, figures: dict, config_info: dict,
         lines += [f"## {name}", "", markdown_table(df).rstrip("\n"), ""]
     if figures:
         lines += ["## Figures", ""]
-        base = out_md.parent.resolve()
+        base = Path(link_dir if link_dir is not None else out_md.parent).resolve()
         for name, path in figures.items():
             rel = Path(os.path.relpath(Path(path).resolve(), base)).as_posix()
             lines += [f"### {name}", "", f"![{name}]({rel})", ""]

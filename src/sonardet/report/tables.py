@@ -17,7 +17,7 @@ import pandas as pd
 
 from ..eval.evaluate import threshold_key
 from ..io.atomic import atomic_write_text
-from .inputs import benchmark_summary, count_annotations, read_json, read_metrics
+from .inputs import benchmark_summary, count_annotations, read_csv_file, read_json, read_metrics
 from .study import STUDY, STUDY_SOURCE, study_map
 
 THIS_RUN = "this run"
@@ -114,11 +114,15 @@ def latex_table(df: pd.DataFrame, caption: str | None = None, label: str | None 
                           label=label if cap is not None else None)
 
 
+#: The files of one table, `{stem}{suffix}` each (`write_table`).
+TABLE_SUFFIXES = (".csv", ".md", ".tex")
+
+
 def write_table(df: pd.DataFrame, stem, caption: str | None = None) -> list[Path]:
     """Write a table as `{stem}.csv` (full precision, missing values empty), `{stem}.md` (GitHub
     Markdown) and `{stem}.tex` (booktabs, label `tab:{stem name}`), each atomically. Returns the paths."""
     stem = Path(stem)
-    paths = [stem.with_name(stem.name + ext) for ext in (".csv", ".md", ".tex")]
+    paths = [stem.with_name(stem.name + ext) for ext in TABLE_SUFFIXES]
     atomic_write_text(paths[0], df.to_csv(index=False, lineterminator="\n"))
     atomic_write_text(paths[1], markdown_table(df, caption))
     atomic_write_text(paths[2], latex_table(df, caption, label=f"tab:{stem.name}"))
@@ -409,7 +413,7 @@ def dataset_table(stats_csv) -> pd.DataFrame:
     'count (share %)', scenes (study), objects (study). The study reports 100 scenes (80 train /
     20 test) and 5491 objects in all.
     """
-    src = stats_csv if isinstance(stats_csv, pd.DataFrame) else pd.read_csv(stats_csv)
+    src = stats_csv if isinstance(stats_csv, pd.DataFrame) else read_csv_file(stats_csv, "dataset table")
     classes = [c.removesuffix("_share_pct") for c in src.columns if c.endswith("_share_pct")]
     out = pd.DataFrame({"split": src["split"].astype(str), "scenes": src["scenes"], "objects": src["objects"]})
     if "objects_not_visible" in src.columns:

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from ..io.artifacts import read_json_file, read_text_file
 from ..seeds import derive_seed
 
 
@@ -49,7 +48,7 @@ def make_splits(ids: list[str], n_test: int, n_dev: int, fractions, seed: int) -
 
 def read_split(path) -> list[str]:
     """Scene ids listed in a split file (one per line)."""
-    return [s for s in Path(path).read_text().split() if s]
+    return [s for s in read_text_file(path, "split file").split() if s]
 
 
 def dataset_stats(scene_jsons: dict[str, dict], splits: dict[str, list[str]], classes: list[str]) -> pd.DataFrame:
@@ -73,4 +72,4 @@ def dataset_stats(scene_jsons: dict[str, dict], splits: dict[str, list[str]], cl
 
 def read_scene_meta(path) -> dict:
     """Read a scene JSON (validation of the contract lives in sonardet.io.annotations)."""
-    return json.loads(Path(path).read_text())
+    return read_json_file(path, "scene annotations file")

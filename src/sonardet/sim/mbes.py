@@ -100,6 +100,15 @@ def ping_rate_hz(sensor: SensorConfig, altitude_m: float) -> float:
     return float(min(sensor.max_ping_rate_hz, sensor.sound_speed_mps / (2.0 * max_range)))
 
 
+def sounding_spacing_m(sensor: SensorConfig, altitude_m: float, overlap: float) -> tuple[float, float]:
+    """Mean spacing (m) of the soundings on a flat seabed `altitude_m` below the transducer: (across
+    track: the swath width over the gaps between its beams, or, for a single beam, the line spacing of
+    `survey_lines` with the swath `overlap` (share); along track: speed / ping rate)."""
+    width = 2.0 * swath_half_width_m(sensor, altitude_m)
+    across = width * (1.0 - overlap) if sensor.n_beams == 1 else width / (sensor.n_beams - 1)
+    return float(across), float(sensor.speed_mps / ping_rate_hz(sensor, altitude_m))
+
+
 def swath_half_width_m(sensor: SensorConfig, altitude_m: float) -> float:
     """Across-track half width (m) of the swath on a flat seabed altitude_m below the transducer."""
     return float(altitude_m * np.tan(np.deg2rad(0.5 * sensor.swath_deg)))
@@ -147,6 +156,12 @@ def straight_line(start_xy, end_xy, z_m: float, sensor: SensorConfig, altitude_m
     xy = start + s[:, None] * d
     pos = np.c_[xy, np.full(n, z_m)]
     return Trajectory(pos, np.full(n, np.arctan2(d[1], d[0])), np.full(n, line))
+
+
+def survey_lines_per_direction(sensor: SensorConfig, altitude_m: float, overlap: float, extent_m) -> int:
+    """Most survey lines `survey_lines` runs in one direction over a scene of `extent_m` (x, y sizes, m)."""
+    spacing = 2.0 * swath_half_width_m(sensor, altitude_m) * (1.0 - overlap)
+    return max(1, int(np.ceil(max(float(e) for e in extent_m) / spacing)))
 
 
 def survey_lines(extent_xy, direction: str, z_m: float, altitude_m: float, overlap: float,

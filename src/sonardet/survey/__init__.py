@@ -1,6 +1,8 @@
 """Surveys: detection on survey files far larger than a tile.
 
-* `tiling`: plan tiles over a survey's x/y bounds, the ownership rule, the merge of tile detections and
+* `extent`: where the soundings are (occupied cells of a coarse grid) and the fliers (a few soundings far
+  from the rest), never in proportion to the bounding box;
+* `tiling`: plan tiles over a survey's x/y bounds near its data, the ownership rule, the merge of tile detections and
   the one-process tiled detection (`detect_tiled`, used by ``sonardet detect``);
 * `split`: the workflow's checkpoint, a survey file cut into tile files by a streaming two-pass split,
   and the tile index;
@@ -27,10 +29,28 @@ from sonardet.survey.split import (
     split_survey,
     tile_ids,
 )
-from sonardet.survey.tiling import Tile, detect_tiled, merge_tile_detections, plan_tiles, tile_points
+from sonardet.survey.extent import FLIER_GAP_M, FLIER_MAX_POINTS, CellStats, Fliers, find_fliers
+from sonardet.survey.tiling import (
+    SurveyLayout,
+    Tile,
+    detect_survey,
+    detect_tiled,
+    merge_tile_detections,
+    plan_tiles,
+    survey_layout,
+    tile_points,
+)
 
 __all__ = [
     "DEFAULT_CHUNK_POINTS",
+    "FLIER_GAP_M",
+    "FLIER_MAX_POINTS",
+    "CellStats",
+    "Fliers",
+    "SurveyLayout",
+    "detect_survey",
+    "find_fliers",
+    "survey_layout",
     "SURVEY_DEFAULTS",
     "SurveyReader",
     "Tile",

@@ -12,7 +12,7 @@ from sonardet.io.points import DEFAULT_CHUNK_POINTS
 __all__ = ["SURVEY_DEFAULTS", "enabled_surveys", "object_footprint_m", "survey_defaults", "survey_settings"]
 
 #: Default settings of one entry of the config's `surveys` block: enabled, crs, method, tile_m (m),
-#: overlap_m (m), chunk_points, all_hypotheses. `path` has no default. The config schema
+#: overlap_m (m), chunk_points, all_hypotheses, keep_fliers. `path` has no default. The config schema
 #: (`surveys.additionalProperties.properties.*.default` in sonardet/data/schema.yaml) states the same
 #: defaults; tests/test_survey_workflow.py checks that the two agree.
 SURVEY_DEFAULTS: dict = {
@@ -23,6 +23,7 @@ SURVEY_DEFAULTS: dict = {
     "overlap_m": 3.0,
     "chunk_points": DEFAULT_CHUNK_POINTS,
     "all_hypotheses": False,
+    "keep_fliers": False,
 }
 
 

@@ -3,10 +3,11 @@ and the tiles' points.
 
 The workflow (rules/survey.smk) runs the model-based detector on a survey file in three steps:
 
-1. `split_survey` (checkpoint ``survey_tiles``): reads the survey in chunks, plans the tiles over the
-   points' x/y bounds (`sonardet.survey.tiling.plan_tiles`, the plan `detect_tiled` and ``sonardet
-   detect`` make) and writes the points of each tile's padded rectangle to ``tiles/{tile}.npz`` and the
-   tile index JSON (`read_tile_index`, `tile_ids`).
+1. `split_survey` (checkpoint ``survey_tiles``): reads the survey in chunks, finds the occupied cells
+   and the fliers (`sonardet.survey.extent`), plans the tiles over the x/y bounds of the points used,
+   near the occupied cells only (`sonardet.survey.tiling.plan_tiles`, the plan `detect_tiled` and
+   ``sonardet detect`` make) and writes the points of each tile's padded rectangle to
+   ``tiles/{tile}.npz`` and the tile index JSON (`read_tile_index`, `tile_ids`).
 2. one detection job per tile that holds points, on that tile's points only (`read_tile_points`), so
    its memory is bounded by the tile (peak RSS 264 MB for a 380 000-point 46 m x 46 m padded tile of
    bare seabed, against the whole survey held by ``sonardet detect``);
@@ -54,6 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from sonardet import SCHEMA_VERSION
+from sonardet.io.artifacts import read_json_file
 from sonardet.io.atomic import atomic_write_text
 from sonardet.io.origin import choose_origin
 from sonardet.io.points import (
@@ -65,6 +67,7 @@ from sonardet.io.points import (
     read_points,
     write_points,
 )
+from sonardet.survey.extent import FLIER_GAP_M, FLIER_MAX_POINTS, FLIERS_LISTED, CellStats, Fliers, find_fliers
 from sonardet.survey.tiling import Tile, plan_tiles, tile_points
 
 log = logging.getLogger(__name__)
@@ -142,29 +145,38 @@ def _tile_doc(tile: Tile, n_points: int, file: str | None) -> dict:
             "owns": owns, "n_points": int(n_points), "file": file}
 
 
-def _spool_survey(reader: SurveyReader, spool_path: Path) -> tuple[int, np.ndarray, np.ndarray]:
+def _spool_survey(reader: SurveyReader, spool_path: Path, cell_m: float) -> tuple[int, CellStats]:
     """Pass 1 of the split: the survey's coordinates, chunk by chunk, to a float64 spool file; returns
-    (number of points, minimum and maximum x, y, z (m))."""
-    n, lo, hi = 0, np.full(3, np.inf), np.full(3, -np.inf)
+    (number of points, the occupied cells of a `cell_m` grid with their counts and x, y, z ranges)."""
+    n, cells = 0, CellStats(float(cell_m))
     with open(spool_path, "wb") as fh:
         for xyz in reader.chunks():
             xyz = np.ascontiguousarray(xyz, dtype=np.float64)
             xyz.tofile(fh)
             n += len(xyz)
-            lo, hi = np.minimum(lo, xyz.min(0)), np.maximum(hi, xyz.max(0))
+            cells = cells.merge(CellStats.of(xyz, cell_m))
             log.info("%s: read %d points", reader.path.name, n)
     if n == 0:
         raise PointCloudError(f"{reader.path}: no points")
-    return n, lo, hi
+    return n, cells
 
 
-def _cut_spool(spool_path: Path, spool_dir: Path, tiles: list[Tile], chunk_points: int) -> dict[str, int]:
+def _cut_spool(spool_path: Path, spool_dir: Path, tiles: list[Tile], chunk_points: int,
+               fliers: Fliers | None) -> dict[str, int]:
     """Pass 2 of the split: the spool cut chunk by chunk, each chunk's tile subsets appended to that
-    tile's spool ``{tile}.f64``; returns tile id -> number of points."""
+    tile's spool ``{tile}.f64``; returns tile id -> number of points. Flier points are left out unless
+    kept; the first few are recorded in `fliers.points`."""
     counts = {t.id: 0 for t in tiles}
+    listed = []
     with open(spool_path, "rb") as src:  # plain reads, not a memory map: RSS stays at one chunk
         while len(chunk := np.fromfile(src, dtype=np.float64, count=3 * chunk_points)):
             chunk = chunk.reshape(-1, 3)
+            if fliers is not None:
+                mask = fliers.cells.contains(chunk)
+                listed += list(chunk[mask][: FLIERS_LISTED - len(listed)])
+                chunk = chunk if fliers.kept else chunk[~mask]
+                if not len(chunk):
+                    continue
             clo, chi = chunk[:, :2].min(0), chunk[:, :2].max(0)
             for t in tiles:
                 x0, y0, x1, y1 = t.padded
@@ -175,6 +187,8 @@ def _cut_spool(spool_path: Path, spool_dir: Path, tiles: list[Tile], chunk_point
                     with open(spool_dir / f"{t.id}.f64", "ab") as fh:
                         chunk[idx].tofile(fh)
                     counts[t.id] += len(idx)
+    if fliers is not None:
+        fliers.points = np.array(listed).reshape(-1, 3)
     return counts
 
 
@@ -198,30 +212,44 @@ def _write_tiles(tiles: list[Tile], counts: dict[str, int], spool_dir: Path, til
     return docs
 
 
+def _plan(cells: CellStats, tile_m, overlap_m, min_overlap_m, keep_fliers: bool):
+    """(fliers or None, bounds [xmin, ymin, xmax, ymax] and z range of the points used, tiles near them)."""
+    is_flier = find_fliers(cells)
+    fliers = Fliers(cells.select(is_flier), FLIER_GAP_M, FLIER_MAX_POINTS, kept=keep_fliers) if is_flier.any() else None
+    used = cells if fliers is None or keep_fliers else cells.select(~is_flier)
+    lo, hi = used.bounds()
+    bounds = [float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])]
+    return fliers, bounds, [float(lo[2]), float(hi[2])], plan_tiles(bounds, tile_m, overlap_m, min_overlap_m,
+                                                                     near=used.rects())
+
+
 def split_survey(path, tiles_dir, index_path, *, survey: str, tile_m: float = 40.0, overlap_m: float = 3.0,
                  crs: str | None = None, min_overlap_m: float | None = None,
-                 chunk_points: int = DEFAULT_CHUNK_POINTS) -> dict:
+                 chunk_points: int = DEFAULT_CHUNK_POINTS, keep_fliers: bool = False) -> dict:
     """Cut a survey file into tiles: ``tiles_dir/{tile}.npz`` per non-empty tile and the tile index
     JSON at `index_path`; returns the index document.
 
-    Tiles: `plan_tiles` over the x/y bounds of all points with `tile_m` and `overlap_m` (m), checked
-    against `min_overlap_m` (the largest object footprint, m; see `object_footprint_m`), exactly as
-    `detect_tiled` plans them. A tile's NPZ holds the points of its padded rectangle (`tile_points`:
-    borders included) in file order: ``xyz`` float64 (m, the survey's coordinates, as read), ``origin``
-    (the survey's local origin) and ``crs`` (when known). Tiles whose padded rectangle holds no point
-    get no file (``file: null`` in the index).
+    Tiles: `plan_tiles` over the x/y bounds of the points used with `tile_m` and `overlap_m` (m),
+    checked against `min_overlap_m` (the largest object footprint, m; see `object_footprint_m`), and
+    only near the occupied cells of a `tile_m` grid, exactly as `detect_tiled` plans them. Fliers
+    (`sonardet.survey.extent.find_fliers`: a few soundings more than 100 m from the rest) are left out
+    unless `keep_fliers`, and reported (log WARNING, index entry `fliers`). A tile's NPZ holds the points
+    of its padded rectangle (`tile_points`: borders included) in file order: ``xyz`` float64 (m, the
+    survey's coordinates, as read), ``origin`` (the survey's local origin) and ``crs`` (when known).
+    Planned tiles whose padded rectangle holds no point get no file (``file: null`` in the index).
 
     Two passes over the data (see the module doc for memory): the file is read once, chunk by chunk,
-    into a float64 spool in `tiles_dir` (bounds on the way); the spool is then cut chunk by chunk,
-    each chunk's tile subsets appended to per-tile spools, which become the NPZ files one at a time.
-    Spools are removed at the end, also on error. Progress is logged at INFO level.
+    into a float64 spool in `tiles_dir` (occupied cells on the way); the spool is then cut chunk by
+    chunk, each chunk's tile subsets appended to per-tile spools, which become the NPZ files one at a
+    time. Spools are removed at the end, also on error. Progress is logged at INFO level.
 
-    Index document: schema_version, survey, source, crs, origin [x, y, z] (m), n_points, bounds
-    [xmin, ymin, xmax, ymax] (m), z_range [zmin, zmax] (m), tile_m, overlap_m, min_overlap_m, nx, ny,
-    chunk_points, streamed, frame (a note), and tiles: one {id, ix, iy, core, padded, owns, n_points,
-    file} per tile of the plan, row by row; `core` and `padded` are [xmin, ymin, xmax, ymax] (m), `owns`
-    the ownership area of `Tile.owns` with null for a side that extends to infinity, `file` the NPZ
-    path relative to the index's folder (null for a tile without points).
+    Index document: schema_version, survey, source, crs, origin [x, y, z] (m), n_points (in the file),
+    n_points_used, fliers (`Fliers.to_json`, null without fliers), bounds [xmin, ymin, xmax, ymax] (m) and
+    z_range [zmin, zmax] (m) of the points used, tile_m, overlap_m, min_overlap_m, nx, ny (of the full
+    plan over the bounds), chunk_points, streamed, frame (a note), and tiles: one {id, ix, iy, core,
+    padded, owns, n_points, file} per planned tile, row by row; `core` and `padded` are [xmin, ymin,
+    xmax, ymax] (m), `owns` the ownership area of `Tile.owns` with null for a side that extends to
+    infinity, `file` the NPZ path relative to the index's folder (null for a tile without points).
     """
     t0 = time.perf_counter()
     plan_tiles((0.0, 0.0, 0.0, 0.0), tile_m, overlap_m, min_overlap_m)  # bad settings fail before reading
@@ -234,20 +262,23 @@ def split_survey(path, tiles_dir, index_path, *, survey: str, tile_m: float = 40
     spool_dir.mkdir()
     try:
         survey_spool = spool_dir / "survey.f64"
-        n, lo, hi = _spool_survey(reader, survey_spool)
-        tiles = plan_tiles((lo[0], lo[1], hi[0], hi[1]), tile_m, overlap_m, min_overlap_m)
-        origin = reader.origin if reader.origin is not None else choose_origin(lo[None, :])
-        log.info("%s: %d points over %.1f x %.1f m (%s) -> %d tiles (%d x %d) of <= %g m, overlap %g m",
-                 reader.path.name, n, hi[0] - lo[0], hi[1] - lo[1], reader.crs or "CRS unknown", len(tiles),
-                 tiles[0].nx, tiles[0].ny, tile_m, overlap_m)
-        counts = _cut_spool(survey_spool, spool_dir, tiles, reader.chunk_points)
+        n, cells = _spool_survey(reader, survey_spool, tile_m)
+        fliers, bounds, z_range, tiles = _plan(cells, tile_m, overlap_m, min_overlap_m, keep_fliers)
+        origin = reader.origin if reader.origin is not None else choose_origin(np.array([[*bounds[:2], z_range[0]]]))
+        log.info("%s: %d points over %.1f x %.1f m (%s) -> %d tiles near the data (of %d x %d) of <= %g m, overlap "
+                 "%g m", reader.path.name, n, bounds[2] - bounds[0], bounds[3] - bounds[1], reader.crs or "CRS unknown",
+                 len(tiles), tiles[0].nx, tiles[0].ny, tile_m, overlap_m)
+        counts = _cut_spool(survey_spool, spool_dir, tiles, reader.chunk_points, fliers)
+        if fliers is not None:
+            log.warning("%s", fliers.describe(str(path)))
         docs = _write_tiles(tiles, counts, spool_dir, tiles_dir, index_path, reader.crs, origin)
     finally:
         shutil.rmtree(spool_dir, ignore_errors=True)
     doc = {
         "schema_version": SCHEMA_VERSION, "survey": survey, "source": str(path), "crs": reader.crs,
         "origin": [float(v) for v in origin], "n_points": int(n),
-        "bounds": [float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])], "z_range": [float(lo[2]), float(hi[2])],
+        "n_points_used": int(n if fliers is None or fliers.kept else n - fliers.n_points),
+        "fliers": None if fliers is None else fliers.to_json(), "bounds": bounds, "z_range": z_range,
         "tile_m": float(tile_m), "overlap_m": float(overlap_m),
         "min_overlap_m": None if min_overlap_m is None else float(min_overlap_m),
         "nx": tiles[0].nx, "ny": tiles[0].ny, "chunk_points": reader.chunk_points, "streamed": reader.streamed,
@@ -273,11 +304,8 @@ def read_tile_index(path) -> tuple[dict, list[Tile]]:
     Rectangles are read back bit for bit (JSON floats round-trip). Raises ValueError naming the file
     for a missing key, another schema_version or an inconsistent tile entry."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc}); rerun the survey_tiles job") from None
-    missing = [k for k in _INDEX_KEYS if k not in doc]
+    doc = read_json_file(path, "tile index", hint="delete it and rerun the survey_tiles job")
+    missing = [k for k in _INDEX_KEYS if not isinstance(doc, dict) or k not in doc]
     if missing:
         raise ValueError(f"{path}: not a tile index (missing {', '.join(missing)}); rerun the survey_tiles job")
     if doc["schema_version"] != SCHEMA_VERSION:

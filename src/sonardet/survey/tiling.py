@@ -7,6 +7,11 @@ cut into square-ish tiles. Every tile has
 * a **padded** rectangle: the core grown by `overlap_m` on every side; the detector of a tile sees
   the points of its padded rectangle only, so memory and time per tile are bounded by the tile.
 
+Only tiles near data are planned (`plan_tiles` with `near`, the occupied cells of a coarse grid from
+`sonardet.survey.extent`), and isolated far soundings (fliers) are dropped by default before the
+bounds are taken (`survey_layout`): a stray sounding 100 km off neither widens the plan to millions
+of tiles nor costs memory in proportion to the bounding box.
+
 Ownership rule (`merge_tile_detections`): a tile reports only the detections whose box centre lies
 in its core. Why that is enough: an object's points lie within its horizontal footprint, so they are
 no farther than the footprint (<= the largest object's width) from its box centre. When
@@ -32,9 +37,12 @@ from typing import Callable
 
 import numpy as np
 
+from sonardet.survey.extent import FLIER_GAP_M, FLIER_MAX_POINTS, FLIERS_LISTED, CellStats, Fliers, find_fliers
+
 log = logging.getLogger(__name__)
 
-__all__ = ["Tile", "detect_tiled", "merge_tile_detections", "plan_tiles", "tile_points"]
+__all__ = ["SurveyLayout", "Tile", "detect_survey", "detect_tiled", "merge_tile_detections", "plan_tiles",
+           "survey_layout", "tile_points"]
 
 
 @dataclass(frozen=True)
@@ -84,28 +92,22 @@ class Tile:
         return lo_x & hi_x & lo_y & hi_y
 
 
-def _edges(lo: float, hi: float, tile_m: float) -> np.ndarray:
-    """Core borders along one axis: n = ceil(extent / tile_m) (>= 1) equal cells over [lo, hi]."""
-    n = max(1, int(np.ceil((hi - lo) / tile_m - 1e-9)))
-    e = lo + (hi - lo) * np.arange(n + 1, dtype=np.float64) / n
-    e[0], e[-1] = lo, hi  # exact ends, whatever the rounding
-    return e
+def _n_cells(lo: float, hi: float, tile_m: float) -> int:
+    """Number of equal cores along one axis: n = ceil(extent / tile_m) (>= 1)."""
+    return max(1, int(np.ceil((hi - lo) / tile_m - 1e-9)))
 
 
-def plan_tiles(bounds_xy, tile_m: float = 40.0, overlap_m: float = 3.0,
-               min_overlap_m: float | None = None) -> list[Tile]:
-    """Cut the rectangle `bounds_xy` = (xmin, ymin, xmax, ymax) (m, float64, any frame incl. UTM)
-    into tiles at most `tile_m` wide.
+def _edge(lo: float, hi: float, n: int, i: int) -> float:
+    """Border i (0..n) of the n equal cores over [lo, hi] (m): lo + (hi - lo) i / n, the ends exact."""
+    if i <= 0:
+        return lo
+    if i >= n:
+        return hi
+    return float(lo + (hi - lo) * np.float64(i) / n)
 
-    Along each axis the extent is split into n = ceil(extent / tile_m) equal cores (so no sliver tile
-    is left at the end); the cores partition the bounds exactly (neighbours share their border values
-    bit for bit). padded = core grown by `overlap_m` on each side. `min_overlap_m` (m): the smallest
-    overlap that keeps the ownership rule exact, i.e. the largest object footprint (width) to be
-    detected; a smaller `overlap_m` raises ValueError. Tiles are ordered row by row (iy, then ix).
 
-    Raises ValueError for non-finite bounds, xmax < xmin or ymax < ymin, tile_m <= 0, a negative
-    overlap_m or overlap_m < min_overlap_m.
-    """
+def _check_plan(bounds_xy, tile_m, overlap_m, min_overlap_m) -> tuple[float, float, float, float]:
+    """The bounds as 4 floats; raise ValueError for bad bounds or settings (see `plan_tiles`)."""
     b = np.asarray(bounds_xy, dtype=np.float64)
     if b.shape != (4,) or not np.all(np.isfinite(b)):
         raise ValueError(f"bounds_xy must be 4 finite numbers (xmin, ymin, xmax, ymax) in metres, got {bounds_xy!r}")
@@ -121,14 +123,65 @@ def plan_tiles(bounds_xy, tile_m: float = 40.0, overlap_m: float = 3.0,
             f"overlap_m = {overlap_m:g} m is smaller than the largest object footprint ({min_overlap_m:g} m): an "
             f"object whose centre lies in a tile's core could then have points outside that tile's padded area "
             f"and be missed or cut; use overlap_m >= {min_overlap_m:g}")
-    ex, ey = _edges(xmin, xmax, tile_m), _edges(ymin, ymax, tile_m)
-    nx, ny = len(ex) - 1, len(ey) - 1
+    return xmin, ymin, xmax, ymax
+
+
+def _near_cells(rects: np.ndarray, lo: float, hi: float, n: int, overlap_m: float, axis: int) -> np.ndarray:
+    """(K, 2) first and last core index along one axis whose padded range may meet each rectangle's
+    range (a superset by at most one core on each side; `plan_tiles` tests exactly)."""
+    a, b = rects[:, axis] - overlap_m, rects[:, axis + 2] + overlap_m
+    scale = n / (hi - lo) if hi > lo else 0.0
+    first = np.floor((a - lo) * scale).astype(np.int64) - 1
+    last = np.floor((b - lo) * scale).astype(np.int64) + 1
+    return np.clip(np.c_[first, last], 0, n - 1)
+
+
+def _tiles_near(rects, box, nx: int, ny: int, overlap_m: float) -> list[tuple[int, int]]:
+    """(iy, ix) of the tiles whose padded rectangle meets one of `rects` ((K, 4) m), sorted row by row."""
+    xmin, ymin, xmax, ymax = box
+    rects = np.asarray(rects, dtype=np.float64).reshape(-1, 4)
+    rx, ry = _near_cells(rects, xmin, xmax, nx, overlap_m, 0), _near_cells(rects, ymin, ymax, ny, overlap_m, 1)
+    found = set()
+    for r, (x0, x1), (y0, y1) in zip(rects, rx, ry):
+        for ix in range(int(x0), int(x1) + 1):
+            if _edge(xmin, xmax, nx, ix) - overlap_m > r[2] or _edge(xmin, xmax, nx, ix + 1) + overlap_m < r[0]:
+                continue
+            for iy in range(int(y0), int(y1) + 1):
+                if _edge(ymin, ymax, ny, iy) - overlap_m <= r[3] and _edge(ymin, ymax, ny, iy + 1) + overlap_m >= r[1]:
+                    found.add((iy, ix))
+    return sorted(found)
+
+
+def plan_tiles(bounds_xy, tile_m: float = 40.0, overlap_m: float = 3.0,
+               min_overlap_m: float | None = None, near=None) -> list[Tile]:
+    """Cut the rectangle `bounds_xy` = (xmin, ymin, xmax, ymax) (m, float64, any frame incl. UTM)
+    into tiles at most `tile_m` wide.
+
+    Along each axis the extent is split into n = ceil(extent / tile_m) equal cores (so no sliver tile
+    is left at the end); the cores partition the bounds exactly (neighbours share their border values
+    bit for bit). padded = core grown by `overlap_m` on each side. `min_overlap_m` (m): the smallest
+    overlap that keeps the ownership rule exact, i.e. the largest object footprint (width) to be
+    detected; a smaller `overlap_m` raises ValueError. Tiles are ordered row by row (iy, then ix).
+
+    `near`: None plans every tile of the bounds. Else (K, 4) rectangles [xmin, ymin, xmax, ymax] (m)
+    holding the data (e.g. `sonardet.survey.extent.CellStats.rects`): only the tiles whose padded
+    rectangle meets one of them are returned, with the same ids, cores and padding as in the full plan
+    (nx, ny are the full plan's), so the work and memory follow the occupied area, not the bounding box.
+
+    Raises ValueError for non-finite bounds, xmax < xmin or ymax < ymin, tile_m <= 0, a negative
+    overlap_m or overlap_m < min_overlap_m.
+    """
+    box = _check_plan(bounds_xy, tile_m, overlap_m, min_overlap_m)
+    xmin, ymin, xmax, ymax = box
+    nx, ny = _n_cells(xmin, xmax, tile_m), _n_cells(ymin, ymax, tile_m)
+    cells = [(iy, ix) for iy in range(ny) for ix in range(nx)] if near is None else \
+        _tiles_near(near, box, nx, ny, overlap_m)
     tiles = []
-    for iy in range(ny):
-        for ix in range(nx):
-            core = (float(ex[ix]), float(ey[iy]), float(ex[ix + 1]), float(ey[iy + 1]))
-            padded = (core[0] - overlap_m, core[1] - overlap_m, core[2] + overlap_m, core[3] + overlap_m)
-            tiles.append(Tile(f"t{ix:03d}_{iy:03d}", ix, iy, nx, ny, core, padded))
+    for iy, ix in cells:
+        core = (_edge(xmin, xmax, nx, ix), _edge(ymin, ymax, ny, iy), _edge(xmin, xmax, nx, ix + 1),
+                _edge(ymin, ymax, ny, iy + 1))
+        padded = (core[0] - overlap_m, core[1] - overlap_m, core[2] + overlap_m, core[3] + overlap_m)
+        tiles.append(Tile(f"t{ix:03d}_{iy:03d}", ix, iy, nx, ny, core, padded))
     return tiles
 
 
@@ -187,38 +240,104 @@ def merge_tile_detections(per_tile: dict, tiles, dup_dist_m: float = 0.5) -> lis
     return out
 
 
-def _column_index(x: np.ndarray):
-    """Points sorted by x once (indices and sorted x), so a tile's column is found by bisection."""
-    order = np.argsort(x, kind="stable")
-    return order, x[order]
+@dataclass
+class SurveyLayout:
+    """Where a detector runs on a survey held in memory (`survey_layout`): keep (int64 indices of the
+    points used, ascending; None: all of them), fliers (`sonardet.survey.extent.Fliers`, None when there
+    are none), bounds ((xmin, ymin, xmax, ymax) of the points used, m) and tiles (`plan_tiles` over
+    those bounds, only near occupied cells)."""
+
+    keep: np.ndarray | None
+    fliers: Fliers | None
+    bounds: tuple[float, float, float, float]
+    tiles: list[Tile]
+
+    def points(self, xyz: np.ndarray) -> np.ndarray:
+        """The points used (a copy when fliers were dropped)."""
+        return xyz if self.keep is None else xyz[self.keep]
+
+
+def survey_layout(xyz: np.ndarray, tile_m: float = 40.0, overlap_m: float = 3.0, min_overlap_m: float | None = None,
+                  keep_fliers: bool = False, flier_gap_m: float = FLIER_GAP_M, flier_max_points: int = FLIER_MAX_POINTS,
+                  source: str = "survey") -> SurveyLayout:
+    """Fliers and tiles of the points xyz ((N, 3) float64 m, any frame incl. UTM; N >= 1).
+
+    The occupied cells of a grid of `tile_m` (`sonardet.survey.extent.CellStats`) give the fliers
+    (`find_fliers`: clusters of at most `flier_max_points` soundings more than `flier_gap_m` m from the
+    rest), which are dropped unless `keep_fliers`, and logged (WARNING: count and coordinates, naming
+    `source`) either way; then `plan_tiles` over the bounds of the points used, only near the occupied
+    cells. Memory: the points' cell keys (16 bytes per point) and the occupied cells, whatever the
+    bounding box. Settings are checked as in `plan_tiles` (ValueError)."""
+    _check_plan((0.0, 0.0, 0.0, 0.0), tile_m, overlap_m, min_overlap_m)
+    cells = CellStats.of(xyz, tile_m)
+    is_flier = find_fliers(cells, flier_gap_m, flier_max_points)
+    keep, fliers = None, None
+    if is_flier.any():
+        fliers = Fliers(cells.select(is_flier), flier_gap_m, flier_max_points, kept=keep_fliers)
+        mask = fliers.cells.contains(xyz)
+        fliers.points = np.asarray(xyz)[np.flatnonzero(mask)[:FLIERS_LISTED]]
+        log.warning("%s", fliers.describe(source))
+        if not keep_fliers:
+            keep = np.flatnonzero(~mask)
+            cells = cells.select(~is_flier)
+    lo, hi = cells.bounds()
+    bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    return SurveyLayout(keep, fliers, bounds, plan_tiles(bounds, tile_m, overlap_m, min_overlap_m, near=cells.rects()))
+
+
+def _column_index(xyz: np.ndarray, keep: np.ndarray | None):
+    """Points (those of `keep`, else all) sorted by x once: their indices into xyz and their sorted x, so a
+    tile's column is found by bisection."""
+    if keep is None:
+        order = np.argsort(xyz[:, 0], kind="stable")
+    else:
+        order = keep[np.argsort(xyz[keep, 0], kind="stable")]
+    return order, xyz[order, 0]
+
+
+def _run_tile(p: np.ndarray, idx: np.ndarray, tile: Tile, detect_fn: Callable, row: dict) -> list:
+    """detect_fn on the tile's points p[idx]; fills the row's seconds, stats, counts; returns the detections."""
+    t = time.perf_counter()
+    res = detect_fn(p[idx])
+    row["seconds"] = time.perf_counter() - t
+    if isinstance(res, tuple) and len(res) == 2 and isinstance(res[1], dict):
+        dets, row["stats"] = list(res[0]), res[1]
+    else:
+        dets = list(res)
+    row["n_detections"] = len(dets)
+    row["n_kept"] = sum(bool(tile.owns(d["box"][0], d["box"][1])) for d in dets)
+    return dets
 
 
 def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, overlap_m: float = 3.0,
-                 progress: bool = True, min_overlap_m: float | None = None, dup_dist_m: float = 0.5):
+                 progress: bool = True, min_overlap_m: float | None = None, dup_dist_m: float = 0.5,
+                 keep_fliers: bool = False, layout: SurveyLayout | None = None):
     """Run `detect_fn` tile by tile over the points xyz (N,3) (float64 metres, any frame incl. UTM)
     and merge the results.
 
     detect_fn(points (M,3) float64, the tile's padded subset in xyz's frame and in xyz's order) returns
     a list of detections (boxes in the same frame), or (detections, stats dict). Tiles come from
-    `plan_tiles` over the points' x/y bounds; tiles whose padded rectangle holds no point are skipped.
-    Memory: the points are sorted by x once (an index and one column, 16 bytes per point); a tile's
-    column strip is found by bisection (its indices and y values, 16 bytes per point of the strip,
-    live while the tile is cut out) and the detector gets a copy of the tile's points only, never of
-    the whole cloud. With `progress`, every tile is
-    logged at INFO level ("tile 3/9 t002_000: 51234 points, 2 detections, 4.1 s").
+    `survey_layout` (or the `layout` given): fliers dropped (unless `keep_fliers`) and logged, tiles
+    over the bounds of the points used but only near occupied cells; tiles whose padded rectangle
+    holds no point are skipped. Memory: the points are sorted by x once (an index and one column, 16
+    bytes per point); a tile's column strip is found by bisection (its indices and y values, 16 bytes
+    per point of the strip, live while the tile is cut out) and the detector gets a copy of the tile's
+    points only, never of the whole cloud. With `progress`, every tile is logged at INFO level ("tile
+    3/9 t002_000: 51234 points, 2 detections, 4.1 s").
 
     Returns (detections, per_tile_stats): the merged detections (`merge_tile_detections`, sorted by
-    descending score) and one dict per tile {tile, core, padded, n_points, n_detections, n_kept,
+    descending score) and one dict per planned tile {tile, core, padded, n_points, n_detections, n_kept,
     seconds, skipped, stats (what detect_fn returned, if any)}.
     """
     p = np.asarray(xyz)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"xyz must be an (N,3) array of x, y, z in metres, got shape {p.shape}")
     if len(p) == 0:
+        _check_plan((0.0, 0.0, 0.0, 0.0), tile_m, overlap_m, min_overlap_m)
         return [], []
-    lo, hi = p[:, :2].min(0), p[:, :2].max(0)
-    tiles = plan_tiles((lo[0], lo[1], hi[0], hi[1]), tile_m, overlap_m, min_overlap_m)
-    order, xs = _column_index(p[:, 0])
+    layout = layout or survey_layout(p, tile_m, overlap_m, min_overlap_m, keep_fliers)
+    tiles = layout.tiles
+    order, xs = _column_index(p, layout.keep)
     per_tile, rows = {}, []
     for k, tile in enumerate(tiles, 1):
         x0, y0, x1, y1 = tile.padded
@@ -233,17 +352,35 @@ def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, ove
             if progress:
                 log.info("tile %d/%d %s: no points, skipped", k, len(tiles), tile.id)
             continue
-        t = time.perf_counter()
-        res = detect_fn(p[idx])
-        row["seconds"] = time.perf_counter() - t
-        if isinstance(res, tuple) and len(res) == 2 and isinstance(res[1], dict):
-            dets, row["stats"] = list(res[0]), res[1]
-        else:
-            dets = list(res)
-        per_tile[tile.id] = dets
-        row["n_detections"] = len(dets)
-        row["n_kept"] = sum(bool(tile.owns(d["box"][0], d["box"][1])) for d in dets)
+        per_tile[tile.id] = _run_tile(p, idx, tile, detect_fn, row)
         if progress:
             log.info("tile %d/%d %s: %d points, %d detections (%d centred in the core), %.1f s",
-                     k, len(tiles), tile.id, len(idx), len(dets), row["n_kept"], row["seconds"])
+                     k, len(tiles), tile.id, len(idx), row["n_detections"], row["n_kept"], row["seconds"])
     return merge_tile_detections(per_tile, tiles, dup_dist_m), rows
+
+
+def detect_survey(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, overlap_m: float = 3.0,
+                  min_overlap_m: float | None = None, keep_fliers: bool = False, source: str = "survey"):
+    """Detection on a whole survey held in memory (what ``sonardet detect`` runs): `survey_layout`
+    (fliers dropped unless `keep_fliers`, logged naming `source`), then `detect_fn` on the points used in
+    one call when one tile covers them, else `detect_tiled`. xyz: (N, 3) float64 m, any frame.
+
+    Returns (detections, info): detections in xyz's frame; info {n_points (used), n_tiles (tiles that
+    held points), rows (`detect_tiled`'s per-tile rows, None for one tile), fliers (the
+    `Fliers.to_json` report, None without fliers)}."""
+    p = np.asarray(xyz)
+    if p.ndim != 2 or p.shape[1] != 3 or not len(p):
+        raise ValueError(f"{source}: expected (N, 3) points with N >= 1, got shape {p.shape}")
+    layout = survey_layout(p, tile_m, overlap_m, min_overlap_m, keep_fliers, source=source)
+    info = {"n_points": len(p) if layout.keep is None else len(layout.keep), "n_tiles": 1, "rows": None,
+            "fliers": layout.fliers.to_json() if layout.fliers is not None else None}
+    if len(layout.tiles) == 1:
+        res = detect_fn(layout.points(p))
+        dets = list(res[0]) if isinstance(res, tuple) and len(res) == 2 and isinstance(res[1], dict) else list(res)
+        return dets, info
+    b = layout.bounds
+    log.info("%s: %d points over %.1f x %.1f m in %d tiles of <= %g m (overlap %g m)", source, info["n_points"],
+             b[2] - b[0], b[3] - b[1], len(layout.tiles), tile_m, overlap_m)
+    dets, rows = detect_tiled(p, detect_fn, tile_m, overlap_m, True, min_overlap_m, layout=layout)
+    info.update(rows=rows, n_tiles=sum(not r["skipped"] for r in rows))
+    return dets, info

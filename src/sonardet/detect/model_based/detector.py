@@ -36,7 +36,7 @@ def new_stats(variant: str) -> dict:
     return {
         "variant": variant, "n_points": 0, "n_candidate_points": 0, "windows": 0, "windows_skipped": 0,
         "icp_runs": 0, "icp_runs_by_kind": {}, "icp_declined": 0, "hypotheses": 0, "refits": 0,
-        "accepted_per_round": [],
+        "accepted_per_round": [], "capped": {},
         "n_detections": 0, "origin": [0.0, 0.0, 0.0], "seconds": {k: 0.0 for k in _STAGES + ("total",)},
     }
 
@@ -163,8 +163,10 @@ def detect(xyz: np.ndarray, templates: dict, objects: dict, params: dict | None 
     the seabed), windows (paper: sliding windows; ours: proposals tried, class by class), windows_skipped
     (too few points / too low), icp_runs (ICP calls; icp_runs_by_kind splits them), icp_declined
     (degenerate input), hypotheses, refits, accepted_per_round, replaced, proposals_repeated,
-    proposals_outcompeted (ours), n_detections, origin (the local origin used, input frame), seconds
-    {ground, models (building the detector), proposals, registration, scoring, selection, total}.
+    proposals_outcompeted (ours), capped (what the time bounds left out: ours {proposals, tumbled_rounds},
+    `proposal_max_per_round_n`; paper {windows}, `window_max_n`), n_detections, origin (the local origin
+    used, input frame), seconds {ground, models (building the detector), proposals, registration,
+    scoring, selection, total}.
     An empty cloud gives no detections and a warning; NaN/Inf points, a wrong shape, an unknown
     variant or parameter, or a class without templates raise ValueError.
     """

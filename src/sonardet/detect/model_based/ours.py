@@ -22,10 +22,16 @@ Steps (local scene frame, metres):
    tilted tetrapods) on unexplained clusters;
 7. output: accepted objects with their score; other hypotheses that do not duplicate an accepted
    object keep a down-weighted score (more recall at low rank costs nothing in AP).
+
+Time bound: a round fits at most `proposal_max_per_round_n` upright proposals (the best-correlating)
+and as many tumbled seed tries; on a dense or pathological cloud (noise everywhere above the seabed)
+the rest are dropped, counted in stats["capped"] and logged (WARNING). Every stage logs its counts at
+INFO level (logger ``sonardet.detect.model_based.ours``).
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 
@@ -38,9 +44,25 @@ from ...geometry import points_in_box
 from .ground import seabed
 from .models import ClassModel, rot_x, rot_z
 from .params import per_class
-from .proposals import class_kernels, clusters, height_raster, ncc_maps, ncc_peaks, vote_map
+from .proposals import (
+    class_kernels,
+    clusters,
+    height_raster,
+    ncc_maps,
+    ncc_peaks,
+    vote_map,
+)
 from .registration import SceneSource, SurfaceTarget, icp_scene_to_model
-from .scoring import Hypothesis, SceneIndex, new_fraction, rescore, score_hypothesis, view_points
+from .scoring import (
+    Hypothesis,
+    SceneIndex,
+    new_fraction,
+    rescore,
+    score_hypothesis,
+    view_points,
+)
+
+log = logging.getLogger(__name__)
 
 
 def _given_tilts(tumble: dict) -> list:
@@ -335,6 +357,19 @@ def _propose_upright(st, classes, p, rnd, accepted, stats):
     return out
 
 
+def _cap_proposals(props: list, p, rnd: int, stats) -> list:
+    """At most `proposal_max_per_round_n` proposals: the best by correlation, in their original order (so a
+    cap that does not bite changes nothing); the dropped ones are counted and logged."""
+    cap = int(p["proposal_max_per_round_n"])
+    if len(props) <= cap:
+        return props
+    keep = np.sort(np.argsort([-pr[3] for pr in props], kind="stable")[:cap])
+    stats["capped"]["proposals"] += len(props) - cap
+    log.warning("round %d: %d upright proposals; only the %d correlating best are fitted (proposal_max_per_round_n)",
+                rnd, len(props), cap)
+    return [props[i] for i in keep]
+
+
 def _near_boxes(accepted, xy, radius):
     return [a.box for a in accepted if np.hypot(*(a.box[:2] - xy)) < radius + 0.5 * np.hypot(a.box[3], a.box[4])]
 
@@ -464,7 +499,7 @@ def _hypotheses_tumbled(st, classes, p, rnd, accepted, stats):
     idx_act = _seeding_points(st, classes, accepted, p)
     if len(idx_act) == 0:
         return []
-    hyps = []
+    hyps, tries = [], 0
     for grp in clusters(st.pts[idx_act, :2], p["residual_cluster_cell_m"], p["residual_min_points_n"]):
         g = idx_act[grp]
         if float(st.hab[g].max()) < p["residual_min_height_m"]:
@@ -474,6 +509,12 @@ def _hypotheses_tumbled(st, classes, p, rnd, accepted, stats):
                 m = k.model
                 if not k.tumbled:
                     continue
+                if tries >= int(p["proposal_max_per_round_n"]):
+                    stats["capped"]["tumbled_rounds"] += 1
+                    log.warning("round %d: %d tumbled seed tries; the other seeds are left (proposal_max_per_round_n)",
+                                rnd, tries)
+                    return hyps
+                tries += 1
                 crop = _screened_crop(st, cls, m, xy, p, stats, st.tried_tumbled)
                 if crop is None:
                     continue
@@ -655,19 +696,25 @@ def detect_ours(xyz: np.ndarray, classes: dict[str, OursClass], p: dict, stats: 
     stats["replaced"] = 0
     stats["proposals_repeated"] = 0
     stats["proposals_outcompeted"] = 0
+    stats["capped"] = {"proposals": 0, "tumbled_rounds": 0}
     stats["n_candidate_points"] = int(len(st.pts))
     stats["seconds"]["ground"] += time.perf_counter() - t
+    log.info("seabed: %d points, %d candidates above it, %.1f s", len(xyz), len(st.pts), time.perf_counter() - t)
     if len(st.pts) < p["icp_min_points_n"]:
         return []
     accepted: list[Hypothesis] = []
     for rnd in range(int(p["proposal_max_rounds_n"])):
-        props = _propose_upright(st, classes, p, rnd, accepted, stats)
+        t = time.perf_counter()
+        props = _cap_proposals(_propose_upright(st, classes, p, rnd, accepted, stats), p, rnd, stats)
         pending = _hypotheses_upright(st, classes, props, p, rnd, accepted, stats)
         if rnd > 0 and p["tumbled_inits"]:
             pending += _hypotheses_tumbled(st, classes, p, rnd, accepted, stats)
         stats["hypotheses"] += len(pending)
+        n_pending = len(pending)
         new = _select(st, classes, pending, accepted, p, stats)
         stats["accepted_per_round"].append(len(new))
+        log.info("round %d: %d proposals, %d hypotheses, %d accepted (%d in all), %d ICP runs so far, %.1f s", rnd,
+                 len(props), n_pending, len(new), len(accepted), stats["icp_runs"], time.perf_counter() - t)
         if not new and rnd > 0:
             break
     return _output(st, accepted, p)

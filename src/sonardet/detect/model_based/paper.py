@@ -25,6 +25,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 
 import numpy as np
@@ -36,11 +37,19 @@ from ...objects.catalog import canonical_box
 from .ground import seabed
 from .params import per_class
 from .proposals import sliding_windows, window_counts
-from .registration import (MIN_RIGID_POINTS, IcpResult, convergence, icp_point_to_point, is_rigid_transform,
-                           point_cloud)
+from .registration import (
+    MIN_RIGID_POINTS,
+    IcpResult,
+    convergence,
+    icp_point_to_point,
+    is_rigid_transform,
+    point_cloud,
+)
 from .scoring import Hypothesis
 
 SCORES = ("rmse", "fitness_rmse", "tight_fitness")
+
+log = logging.getLogger(__name__)
 
 
 def paper_template(model, which: str) -> list:
@@ -110,7 +119,9 @@ def is_duplicate(h, kept: list, radius_m: dict, p: dict) -> bool:
 
 def _class_windows(pts: np.ndarray, lo, hi, m, p: dict, stats: dict):
     """The sliding windows (K,4) of class model `m` over the rectangle [lo, hi] (m) that hold enough
-    candidate points to be registered (all of them unless skip_empty_windows), and the window side (m)."""
+    candidate points to be registered (all of them unless skip_empty_windows), at most `window_max_n`
+    of them (those holding the most points, in window order; the rest counted in stats["capped"] and
+    logged), and the window side (m)."""
     side = m.footprint_m * p["window_scale"]
     wins = sliding_windows(lo, hi, side, p["window_overlap"])
     counts = window_counts(pts[:, :2], wins)
@@ -118,6 +129,17 @@ def _class_windows(pts: np.ndarray, lo, hi, m, p: dict, stats: dict):
     run = counts >= n_min if p["skip_empty_windows"] else np.ones(len(wins), dtype=bool)
     stats["windows"] += len(wins)
     stats["windows_skipped"] += int((~run).sum())
+    cap, n_run = int(p["window_max_n"]), int(run.sum())
+    if n_run > cap:
+        idx = np.flatnonzero(run)
+        keep = np.sort(idx[np.argsort(-counts[idx], kind="stable")[:cap]])
+        stats["capped"]["windows"] = stats["capped"].get("windows", 0) + n_run - cap
+        log.warning("%s: %d windows to register; only the %d holding the most points are (window_max_n)", m.cls,
+                    n_run, cap)
+        run = np.zeros_like(run)
+        run[keep] = True
+    log.info("%s: %d windows of %.2f m, %d with too few points, %d capped, %d registered", m.cls, len(wins), side,
+             len(wins) - n_run, n_run - int(run.sum()), int(run.sum()))
     return wins[run], side
 
 
@@ -193,7 +215,9 @@ def detect_paper(xyz: np.ndarray, models: dict, p: dict, stats: dict) -> list:
     hab = seabed(xyz, p).hab
     pts = xyz[hab > p["ground_min_height_m"]]
     stats["n_candidate_points"] = int(len(pts))
+    stats["capped"] = {"windows": 0}
     stats["seconds"]["ground"] += time.perf_counter() - t
+    log.info("seabed: %d points, %d candidates above it, %.1f s", len(xyz), len(pts), time.perf_counter() - t)
     if len(pts) < MIN_RIGID_POINTS:
         return []
     tree = cKDTree(pts[:, :2])

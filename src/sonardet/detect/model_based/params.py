@@ -34,6 +34,7 @@ DEFAULTS: dict = {
     "proposal_merge_m": 0.3,
     "proposal_vote_min_frac": 0.2,
     "proposal_max_rounds_n": 3,
+    "proposal_max_per_round_n": 1000,
     "proposal_min_points_frac": 0.15,
     "proposal_min_height_frac": 0.5,
     "proposal_data_min_frac": 0.3,
@@ -136,6 +137,7 @@ PAPER: dict = {
     "window_min_points_frac": 0.25,
     "window_min_thickness_m": 0.03,
     "skip_empty_windows": True,
+    "window_max_n": 5000,
     "icp_max_corr_m": 0.3,
     "icp_max_iter": 30,
     "icp_refine_corr_m": 0.1,
@@ -185,6 +187,12 @@ DESCRIPTIONS: dict = {
     "proposal_min_height_frac": ("-", "skip proposals whose crop is lower above the seabed than this share of the "
                                       "class height (of the pose tried)"),
     "proposal_max_rounds_n": ("-", "proposal/accept rounds; later rounds use only unexplained points"),
+    "proposal_max_per_round_n": ("-", "time bound on dense or pathological clouds: at most this many upright "
+                                      "proposals (the best-correlating ones) and, separately, this many tumbled "
+                                      "seed tries are fitted per round; the rest are dropped, counted in the "
+                                      "statistics (capped) and logged. The default is above anything the default "
+                                      "scenes need (at most 875 proposals in a whole scene), so it changes no "
+                                      "result there"),
     "proposal_data_min_frac": ("-", "a cell's NCC counts only when at least this share of the kernel's support "
                                     "cells hold data (not sonar shadow, not hidden under an accepted object)"),
     "proposal_accepted_radius_frac": ("-", "proposals closer than this share of the class radius to an accepted "
@@ -309,6 +317,10 @@ DESCRIPTIONS: dict = {
                                'registered'),
     "skip_empty_windows": ("-",
                            'skip windows below the point threshold (False: register every window, for benchmarks)'),
+    "window_max_n": ("-", "time bound on dense or pathological clouds: at most this many windows per class are "
+                          "registered (those holding the most candidate points); the rest are dropped, counted in "
+                          "the statistics (capped) and logged. The default is above anything the default scenes "
+                          "need (at most 3163 registered windows in a whole scene)"),
     "icp_max_corr_m": ("m", "point-to-point ICP correspondence distance (paper)"),
     "icp_max_iter": ("-", "point-to-point ICP iterations (paper)"),
     "icp_refine_corr_m": ("m", "correspondence distance of the point-to-point ICP refinement that follows (paper)"),

@@ -19,7 +19,6 @@ in ``PreparedScene.meta["ground_grid"]`` for it), then a weighted sample (see co
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import warnings
@@ -38,6 +37,7 @@ from ...sim.effects.noise import range_noise_dz
 from ...sim.effects.outliers import draw_spikes
 from ...sim.effects.refraction import flat_seabed_cos, svp_bias_dz
 from ...sim.effects.roughness import roughness_point_offsets
+from ...io.artifacts import read_json_file
 from ...io.scenes import read_scene_points
 
 log = logging.getLogger(__name__)
@@ -788,5 +788,5 @@ def collate(items: list[tuple], device) -> dict:
 
 
 def read_json(path) -> dict:
-    """Small helper: read a JSON file."""
-    return json.loads(Path(path).read_text(encoding="utf-8"))
+    """Small helper: read a JSON file (errors name the file and the line: `sonardet.io.artifacts`)."""
+    return read_json_file(path, "JSON file")

@@ -2,7 +2,8 @@
 
 * :func:`train` -- fits a model on prepared training scenes and writes ``model.pt``, ``loss.csv``
   (one row per epoch) and ``train.json`` (time, steps, seconds per step, peak memory, validation mAP)
-  into ``out_dir``; ``checkpoint.pt`` is written after every epoch and resumed from (a checkpoint of
+  into ``out_dir``, the three together at the end (all or none); ``checkpoint.pt`` and the loss curve
+  so far, ``checkpoint_loss.csv``, are written after every epoch and resumed from (a checkpoint of
   another config or another training set is refused with a message naming the setting).
 * :class:`TrainedSASA` -- a saved model loaded once (``TrainedSASA.load(model.pt)``) and called per
   point cloud: ``sasa(xyz, scene_id) -> (detections, stats)``; detections in the frame of ``xyz``
@@ -37,7 +38,8 @@ import torch
 
 from ... import SCHEMA_VERSION
 from ...seeds import derive_seed
-from ...io.atomic import atomic_path, atomic_write_text
+from ...io.artifacts import FileReadError, reading, rebuild_hint
+from ...io.atomic import atomic_outputs, atomic_path, atomic_write_text
 from .config import (
     ARCHITECTURE_KEYS,
     INFERENCE_KEYS,
@@ -127,15 +129,22 @@ def _checkpoint_settings(params: dict, train_ids: list[str]) -> dict:
     return s
 
 
+#: The loss curve of an unfinished run (beside checkpoint.pt, rewritten after every epoch); the
+#: finished run's `loss.csv` is written with `model.pt` and `train.json`.
+PROGRESS_CSV = "checkpoint_loss.csv"
+
+
 def _save(obj, path: Path) -> None:
     with atomic_path(path) as tmp:
         torch.save(obj, tmp)
 
 
 def _load(path: Path, device) -> dict:
-    obj = torch.load(path, map_location=device, weights_only=False)
+    with reading(path, "SASA model / checkpoint (torch)"):
+        obj = torch.load(path, map_location=device, weights_only=False)
     if not isinstance(obj, dict) or obj.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: not a sonardet SASA checkpoint/model (format {obj.get('format')!r})")
+        fmt = obj.get("format") if isinstance(obj, dict) else type(obj).__name__
+        raise FileReadError(f"{path}: not a sonardet SASA checkpoint/model (format {fmt!r}); {rebuild_hint(path)}")
     if obj.get("version") != CHECKPOINT_VERSION:
         raise ValueError(f"{path}: checkpoint version {obj.get('version')!r}; this sonardet reads version "
                          f"{CHECKPOINT_VERSION}. Retrain the model.")
@@ -523,7 +532,7 @@ def _final_validation(model, val_scenes: list, val_paths: list[str], params: dic
            "AP_headline": {c: m["per_class"][c]["AP"][repr(0.5)] for c in params["classes"]}}
     if run.history and "val_mAP" not in run.history[-1] and run.best_epoch is None:
         run.history[-1]["val_mAP"] = m["mAP_headline"]
-        atomic_write_text(out_dir / "loss.csv", _csv_text(run.history))
+        atomic_write_text(out_dir / PROGRESS_CSV, _csv_text(run.history))
     return val, val_s
 
 
@@ -579,7 +588,7 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
         run.history.append(row)
         log.info("epoch %d/%d: loss %.4f, %.1f s (%.2f s/step)%s", epoch + 1, epochs, row.get("loss", float("nan")),
                  ep_s, ep_s / steps_per_epoch, f", dev mAP {row['val_mAP']:.3f}" if "val_mAP" in row else "")
-        atomic_write_text(out_dir / "loss.csv", _csv_text(run.history))
+        atomic_write_text(out_dir / PROGRESS_CSV, _csv_text(run.history))
         _save(_checkpoint(settings, params, model, opt, sched, epoch + 1, run), ckpt_path)
         if run.stopped_epoch is not None:
             log.info("early stop after epoch %d: no dev mAP better than %.4f (epoch %d) in %d evaluations",
@@ -592,8 +601,9 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
     val, val_s = _final_validation(model, val_scenes, val_paths, params, device, run, out_dir)
     summary = _training_summary(params, device, scenes, val_scenes, train_ids, run, prep_s, val_s, val,
                                 sum(p.numel() for p in model.parameters()))
-    _save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "settings": settings, "params": params,
-           "state_dict": model.state_dict(), "classes": list(params["classes"]), "summary": summary},
-          out_dir / "model.pt")
-    atomic_write_text(out_dir / "train.json", json.dumps(summary, indent=1, default=float) + "\n")
+    with atomic_outputs([out_dir / "model.pt", out_dir / "loss.csv", out_dir / "train.json"]) as (pt, loss, js):
+        _save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "settings": settings, "params": params,
+               "state_dict": model.state_dict(), "classes": list(params["classes"]), "summary": summary}, pt)
+        atomic_write_text(loss, _csv_text(run.history))
+        atomic_write_text(js, json.dumps(summary, indent=1, default=float) + "\n")
     return summary

@@ -27,6 +27,7 @@ __all__ = [
     "PointCloudError",
     "UnsupportedFormatError",
     "check_finite",
+    "check_plausible",
     "iter_slices",
     "merge_crs",
     "normalize_crs",
@@ -35,6 +36,12 @@ __all__ = [
 
 #: Attribute names that would clash with coordinates or metadata entries.
 RESERVED_NAMES = frozenset({"x", "y", "z", "xyz", "origin", "crs"})
+#: Largest |x|, |y| (m) of a plausible survey coordinate in any projected CRS: UTM northings stay below
+#: 1e7 m and eastings below 1e6 m, so 1e8 m is a value no survey holds (a unit or parsing error, a
+#: sentinel such as 1e30).
+PLAUSIBLE_XY_M = 1e8
+#: Largest |z| (m) of a plausible sounding: the deepest ocean is 11 km deep, 1e5 m is beyond any survey.
+PLAUSIBLE_Z_M = 1e5
 #: Points per chunk of the chunked readers by default; 1e6 points of x y z text take about 48 MB.
 DEFAULT_CHUNK_POINTS = 1_000_000
 
@@ -99,6 +106,7 @@ class PointCloud:
             xyz = xyz.astype(np.float64)
         self.xyz = np.ascontiguousarray(xyz)
         check_finite(self.xyz, where)
+        check_plausible(self.xyz, where)
         n = self.xyz.shape[0]
 
         if not isinstance(self.attributes, Mapping):
@@ -198,6 +206,30 @@ def check_finite(xyz: np.ndarray, where: str, line_of_row: Sequence[int] | None 
         raise PointCloudError(
             f"{where} {at}: non-finite coordinates x, y, z = {xyz[row].tolist()} "
             f"({count} point(s) affected); remove or fix those points before reading"
+        )
+
+
+def check_plausible(xyz: np.ndarray, where: str, line_of_row: Sequence[int] | None = None,
+                    first_point: int = 0) -> None:
+    """Raise :class:`PointCloudError` naming the first row of ``xyz`` ((N, 3) float64, metres, the file's
+    frame) with a coordinate no survey can have: |x| or |y| > :data:`PLAUSIBLE_XY_M` or |z| >
+    :data:`PLAUSIBLE_Z_M` (a sentinel such as 1e30, a unit or column mix-up), its value and how many rows
+    are affected. Such a value would make tiling plan a grid over the whole bounding box.
+
+    ``where`` starts the message (the file); ``line_of_row`` maps a 0-based row to its 1-based line in a
+    text file; ``first_point`` is the index of row 0 in the file (a chunk of a larger file).
+    """
+    if not len(xyz):
+        return
+    bad = (np.abs(xyz[:, 0]) > PLAUSIBLE_XY_M) | (np.abs(xyz[:, 1]) > PLAUSIBLE_XY_M) | (np.abs(xyz[:, 2]) > PLAUSIBLE_Z_M)
+    if bad.any():
+        row = int(np.argmax(bad))
+        point = first_point + row
+        at = f"line {line_of_row[row]} (point {point})" if line_of_row is not None else f"point {point} (0-based)"
+        raise PointCloudError(
+            f"{where} {at}: implausible coordinates x, y, z = {xyz[row].tolist()} m ({int(bad.sum())} point(s) "
+            f"beyond |x|, |y| <= {PLAUSIBLE_XY_M:g} m, |z| <= {PLAUSIBLE_Z_M:g} m); a sentinel value or a unit or "
+            "column mix-up: remove or fix those points"
         )
 
 

@@ -45,7 +45,18 @@ from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
 
 from sonardet import __version__
 from sonardet.io.atomic import atomic_path
-from sonardet.io.points.core import DEFAULT_CHUNK_POINTS, PointCloud, PointCloudError, merge_crs, normalize_crs
+from sonardet.io.points.core import (
+    DEFAULT_CHUNK_POINTS,
+    PointCloud,
+    PointCloudError,
+    check_plausible,
+    merge_crs,
+    normalize_crs,
+)
+
+#: What laspy and its LAZ backends raise on a truncated or damaged file (lazrs raises a RuntimeError
+#: subclass, "failed to fill whole buffer"); the readers turn these into a PointCloudError naming the file.
+_LAS_ERRORS = (laspy.errors.LaspyException, OSError, ValueError, EOFError, struct.error, RuntimeError)
 
 __all__ = [
     "NAME", "SUFFIXES", "STREAMED", "READ_OPTIONS", "WRITE_OPTIONS", "read", "write", "iter_chunks", "utm_wkt",
@@ -215,7 +226,7 @@ def read(path: str | Path, *, crs: str | None = None) -> PointCloud:
     where = str(p)
     try:
         las = laspy.read(p)
-    except (laspy.errors.LaspyException, OSError, ValueError, EOFError, struct.error) as exc:
+    except _LAS_ERRORS as exc:
         raise PointCloudError(f"{where}: not a readable LAS/LAZ file ({exc})") from exc
     n = int(las.header.point_count)
     if n == 0 or len(las.points) == 0:
@@ -317,7 +328,7 @@ def _read_header(path: Path) -> tuple[str | None, np.ndarray | None, int]:
             file_crs = _read_crs(reader)
             origin = _read_origin(reader, where)
             n = int(reader.header.point_count)
-    except (laspy.errors.LaspyException, OSError, ValueError, EOFError) as exc:
+    except _LAS_ERRORS as exc:
         raise PointCloudError(f"{where}: not a readable LAS/LAZ file ({exc})") from exc
     return file_crs, origin, n
 
@@ -343,9 +354,10 @@ def iter_chunks(
                 xyz = np.empty((len(pts), 3), dtype=np.float64)
                 for i, raw in enumerate((pts.X, pts.Y, pts.Z)):
                     xyz[:, i] = np.asarray(raw, dtype=np.float64) * scales[i] + offsets[i]
+                check_plausible(xyz, where, first_point=n)
                 n += len(xyz)
                 yield PointCloud(xyz, crs=merged, source=where, origin=origin)
-    except (laspy.errors.LaspyException, OSError, ValueError, EOFError) as exc:
+    except _LAS_ERRORS as exc:
         raise PointCloudError(f"{where}: not a readable LAS/LAZ file ({exc})") from exc
     if n != total:
         raise PointCloudError(f"{where}: header counts {total} points but {n} were read; the file is truncated")

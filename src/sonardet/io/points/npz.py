@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sonardet.io.artifacts import FileReadError, read_npz
 from sonardet.io.atomic import atomic_path
 from sonardet.io.points.core import DEFAULT_CHUNK_POINTS, PointCloud, PointCloudError, iter_slices, merge_crs
 
@@ -42,17 +43,11 @@ def read(path: str | os.PathLike, *, crs: str | None = None) -> PointCloud:
     frame), per-point attributes, origin (m, same frame) and CRS; ``crs`` as in ``read_points``."""
     p = Path(path)
     where = str(p)
+    hint = "rewrite it with write_points (a tile or scene the workflow wrote: delete it and rerun the step that writes it)"
     try:
-        npz = np.load(p, allow_pickle=False)
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise PointCloudError(f"{where}: not a readable .npz archive ({exc}); rewrite it with write_points") from exc
-    with npz:
-        if not isinstance(npz, np.lib.npyio.NpzFile):
-            raise PointCloudError(f"{where}: holds a single array, expected an .npz archive with 'xyz'")
-        try:
-            data = {k: npz[k] for k in npz.files}
-        except ValueError as exc:  # object arrays need pickle, which is refused
-            raise PointCloudError(f"{where}: an entry holds Python objects ({exc}); store plain arrays") from exc
+        data = read_npz(p, "point-cloud .npz file", hint=hint)
+    except FileReadError as exc:  # truncated or damaged archive or entry, pickled objects: named in the message
+        raise PointCloudError(str(exc)) from exc
     if "xyz" not in data:
         raise PointCloudError(
             f"{where}: no 'xyz' entry; a scene .npz needs 'xyz' float64 (N, 3) metres "

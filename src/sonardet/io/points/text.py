@@ -56,7 +56,16 @@ from pathlib import Path
 import numpy as np
 
 from sonardet.io.atomic import atomic_path
-from sonardet.io.points.core import DEFAULT_CHUNK_POINTS, PointCloud, PointCloudError, check_finite, merge_crs
+from sonardet.io.points.core import (
+    DEFAULT_CHUNK_POINTS,
+    PLAUSIBLE_XY_M,
+    PLAUSIBLE_Z_M,
+    PointCloud,
+    PointCloudError,
+    check_finite,
+    check_plausible,
+    merge_crs,
+)
 
 __all__ = [
     "NAME", "SUFFIXES", "BASE_SUFFIXES", "STREAMED", "READ_OPTIONS", "WRITE_OPTIONS", "AXIS_ALIASES",
@@ -371,7 +380,17 @@ def _coordinates(df, cols: _Columns) -> np.ndarray:
         lineno = cols.diagnose(stop_row=row)
         lines = {row: lineno} if lineno is not None else None
         check_finite(xyz, cols.where, line_of_row=lines)  # raises
+    bad = _implausible(xyz)
+    if bad.any():
+        row = int(np.argmax(bad))
+        lineno = cols.diagnose(stop_row=row)
+        check_plausible(xyz, cols.where, line_of_row={row: lineno} if lineno is not None else None)  # raises
     return xyz
+
+
+def _implausible(xyz: np.ndarray) -> np.ndarray:
+    """Rows of xyz (m) beyond any survey (`check_plausible`)."""
+    return (np.abs(xyz[:, :2]) > PLAUSIBLE_XY_M).any(axis=1) | (np.abs(xyz[:, 2]) > PLAUSIBLE_Z_M)
 
 
 def _check_count(layout: _Layout, n_points: int, where: str) -> None:
@@ -471,6 +490,8 @@ def _chunk_xyz(df, xyz_cols: tuple[int, int, int], path: Path, crs: str | None, 
         xyz[:, k] = c.to_numpy(dtype=np.float64)
     if not np.isfinite(xyz).all():
         _reader_error(path, crs, f"non-finite coordinates after point {n_before}")
+    if _implausible(xyz).any():
+        _reader_error(path, crs, f"implausible coordinates after point {n_before}")
     return xyz
 
 
