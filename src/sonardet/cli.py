@@ -13,6 +13,7 @@ import argparse
 import json
 import logging
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -137,71 +138,61 @@ def _footprint_m(objects: dict | None, classes: list[str], cfg: dict) -> float:
     return max(2.0 * footprint_radius_m(c, cfg["objects"]) for c in classes)
 
 
+def _class_colours(classes: list[str]) -> dict[str, str]:
+    """Report colour of each class (its spec), for the posed meshes."""
+    from .objects import classes as class_specs
+
+    return {c: class_specs.get(c).colour for c in classes}
+
+
+def _detect_run(args, cfg: dict, classes: list[str]):
+    """The method of `sonardet detect`, loaded (sonardet.survey.DetectRun), with the object models."""
+    from . import methods
+    from .methods import Resources
+    from .survey import DetectRun, plan_tiles
+
+    method = _detect_method(args, cfg)
+    kinds = set(method.resources) | ({"objects"} if args.meshes is not None else set())
+    objects, templates = _detect_inputs(args.results, classes, kinds)
+    footprint = _footprint_m(objects, classes, cfg)
+    plan_tiles((0.0, 0.0, 0.0, 0.0), args.tile_m, args.overlap_m, footprint)  # bad tiling fails before loading
+    model = args.model if args.model is not None else args.results / "models" / method.name / "model.pt"
+    if "model" in method.resources and not model.is_file():
+        raise FileNotFoundError(f"{model}: no trained model for {method.name}; train it with `snakemake --cores 2 "
+                                f"{model}` in the workflow folder or give its file with --model")
+    detector = methods.family(method.family).load(method, Resources(
+        objects=objects, templates=templates, model_path=model if "model" in method.resources else None,
+        threads=args.threads))
+    return DetectRun(method.name, detector, classes, args.tile_m, args.overlap_m, footprint, args.all_hypotheses, objects, _class_colours(classes), progress=not args.quiet)
+
+
 def _run_detect(args) -> int:
     import time
 
-    from . import SCHEMA_VERSION, methods
-    from .io.annotations import to_builtin, validate_detections
-    from .io.atomic import atomic_write_text
-    from .io.export import write_detections_csv, write_detections_geojson
-    from .io.points import read_points
-    from .methods import Resources
-    from .survey import detect_tiled, plan_tiles
+    from .survey import OutputPaths, SurveySource, detect_survey_file
 
     t0 = time.perf_counter()
     cfg = _config(args)
     classes = list(args.classes) if args.classes else list(cfg["classes"])
     cfg["classes"] = classes
-    method = _detect_method(args, cfg)
-    objects, templates = _detect_inputs(args.results, classes, method.resources)
-    model = args.model if args.model is not None else args.results / "models" / method.name / "model.pt"
-    if "model" in method.resources and not model.is_file():
-        raise FileNotFoundError(f"{model}: no trained model for {method.name}; train it with `snakemake --cores 2 "
-                                f"{model}` in the workflow folder or give its file with --model")
-    footprint = _footprint_m(objects, classes, cfg)
-    plan_tiles((0.0, 0.0, 0.0, 0.0), args.tile_m, args.overlap_m, footprint)  # bad tiling fails before reading
-    detector = methods.family(method.family).load(method, Resources(
-        objects=objects, templates=templates, model_path=model if "model" in method.resources else None,
-        threads=args.threads))
-    cloud = read_points(args.input, crs=args.crs)
-    xyz = cloud.xyz
-    if len(xyz) == 0:
-        raise ValueError(f"{args.input}: no points")
-    lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
-    tiles = plan_tiles((lo[0], lo[1], hi[0], hi[1]), args.tile_m, args.overlap_m, footprint)
-
-    t = time.perf_counter()
-    if len(tiles) == 1:
-        dets, _ = detector(xyz)
-        n_tiles = 1
-    else:
-        logging.getLogger("sonardet.detect").info("%s: %d points over %.1f x %.1f m in %d tiles of <= %g m "
-                                                  "(overlap %g m)", args.input, len(xyz), hi[0] - lo[0],
-                                                  hi[1] - lo[1], len(tiles), args.tile_m, args.overlap_m)
-        dets, rows = detect_tiled(xyz, detector, args.tile_m, args.overlap_m, progress=True, min_overlap_m=footprint)
-        n_tiles = sum(not r["skipped"] for r in rows)
-    t_detect = time.perf_counter() - t
-    n_all = len(dets)
-    if not args.all_hypotheses:  # boxes the method accepted as objects (a tail of rejected ones only on request)
-        dets = [d for d in dets if (d.get("extras") or {}).get("accepted", True)]
-
-    # The detection file's scene id is the output file's stem: the project's reader
-    # (io.annotations.read_detections) checks that id against the file name by default.
-    frame = f"{cloud.crs} metres" if cloud.crs else "the input file's coordinates (metres, CRS unknown)"
-    doc = {"schema_version": SCHEMA_VERSION, "scene": args.out.stem, "method": method.name,
-           "source": str(args.input), "crs": cloud.crs, "detections": to_builtin(dets)}
-    doc = validate_detections(doc, args.out, classes, args.out.stem)
-    atomic_write_text(args.out, json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    if args.csv is not None:
-        write_detections_csv(args.csv, dets, origin_note=f"coordinates: {frame}, as in {args.input.name}; "
-                                                         "yaw_rad about +z")
-    if args.geojson is not None:
-        write_detections_geojson(args.geojson, dets, crs=cloud.crs)
+    paths = OutputPaths.of(json=args.out, csv=args.csv, geojson=args.geojson, geojson_crs=args.geojson_crs,
+                           las=args.las, meshes=args.meshes)
+    paths.check_suffixes()  # the CRS is known once the file is read
+    run = _detect_run(args, cfg, classes)
+    source = SurveySource.of(args.input, crs=args.crs, z_positive=args.z_positive, columns=args.columns)
+    # The JSON's scene id is the output file's stem: the project's reader (io.annotations.read_detections)
+    # checks that id against the file name by default.
+    res = detect_survey_file(source, run, paths, name=args.out.stem)
+    dets = res.doc["detections"]
     n_acc = sum(bool(d.get("extras", {}).get("accepted", True)) for d in dets)
-    kept = "all hypotheses" if args.all_hypotheses else f"{n_all - len(dets)} rejected hypotheses left out"
-    print(f"sonardet detect: {args.input.name}: {len(xyz)} points, {n_tiles} tile(s), {len(dets)} detection(s) "
-          f"({n_acc} accepted; {kept}), {method.name}, {t_detect:.1f} s detection, {time.perf_counter() - t0:.1f} s "
-          f"total, coordinates in {cloud.crs or 'the input frame'} -> {args.out}")
+    kept = "all hypotheses" if args.all_hypotheses else f"{res.n_hypotheses - len(dets)} rejected hypotheses left out"
+    crs = res.survey.cloud.crs
+    frame = crs or "the input frame"
+    if res.survey.projection is not None:
+        frame = f"{crs} (projected from {res.survey.input_crs})"
+    print(f"sonardet detect: {args.input.name}: {len(res.survey.cloud)} points, {res.n_tiles} tile(s), {len(dets)} "
+          f"detection(s) ({n_acc} accepted; {kept}), {run.method}, {res.detect_seconds:.1f} s detection, "
+          f"{time.perf_counter() - t0:.1f} s total, coordinates in {frame} -> {args.out}")
     return 0
 
 
@@ -215,6 +206,11 @@ def _config(args) -> dict:
             cfg = validate_config({**cfg, "plugins": list(cfg["plugins"]) + list(args.plugins)}, source=str(args.config))
         return cfg
     return validate_config({"plugins": list(getattr(args, "plugins", None) or [])}, source="defaults")
+
+
+def _add_quiet(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress bars and no informational log lines (bars are drawn only on a terminal anyway)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -243,10 +239,29 @@ def build_parser() -> argparse.ArgumentParser:
                     "processed tile by tile. The JSON's scene id is the output file's stem (name the output "
                     "after the survey to keep its name).")
     p.add_argument("--input", type=Path, required=True,
-                   help="point cloud: .ply .las .laz .xyz .txt .pts .csv (text also .gz) or .npz")
+                   help="survey file: soundings .las .laz .xyz .txt .pts .csv (text also .gz) .ply .npz, or gridded "
+                        "bathymetry .tif/.tiff (GeoTIFF) or .bag (cells of at most 0.25 m)")
     p.add_argument("--out", type=Path, required=True, help="detections JSON (sonardet detection schema)")
-    p.add_argument("--csv", type=Path, default=None, help="also write the detections as CSV")
-    p.add_argument("--geojson", type=Path, default=None, help="also write the box footprints as GeoJSON")
+    p.add_argument("--csv", type=Path, default=None,
+                   help="also write the detections as CSV (header line, lon/lat columns when the CRS is known; "
+                        "metadata in <csv>.json)")
+    p.add_argument("--geojson", type=Path, default=None,
+                   help="also write the box footprints as RFC 7946 GeoJSON (WGS 84 longitude/latitude; needs the CRS)")
+    p.add_argument("--geojson-crs", type=Path, default=None, metavar="PATH",
+                   help="also write the box footprints as GeoJSON in the input's CRS (named in a 'crs' member, "
+                        "as GDAL/QGIS read it)")
+    p.add_argument("--las", type=Path, default=None,
+                   help="also write the input soundings as a classified .las/.laz (ASPRS class 2 seabed, 43 inside a "
+                        "detected box; extra bytes object_id, cls) for CloudCompare")
+    p.add_argument("--meshes", type=Path, default=None,
+                   help="also write the detected objects' posed meshes as one .ply (float64 vertices in the CRS, "
+                        "coloured by class)")
+    p.add_argument("--z-positive", choices=("up", "down"), default=None,
+                   help="direction of the file's vertical values: up (elevations) or down (depths, read as "
+                        "z = -depth); default: from the column name (depth is down), else up")
+    p.add_argument("--columns", default=None, metavar="NAMES",
+                   help="text files: comma-separated column names in file order, e.g. x,y,depth or lon,lat,z,ping "
+                        "(x/easting, y/northing, z/elevation, depth, lon/lat; other names become attributes)")
     p.add_argument("--results", type=Path, default=Path("results"),
                    help="folder with objects/{cls}.json|.ply and templates/{cls}.npz (default: results)")
     p.add_argument("--method", default="model_based_ours",
@@ -269,21 +284,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overlap-m", type=float, default=3.0,
                    help="tile overlap in metres, at least the largest object footprint (default: 3)")
     p.add_argument("--crs", default=None,
-                   help="CRS of the input coordinates when the file carries none (e.g. EPSG:32610)")
+                   help="CRS of the input coordinates when the file carries none (e.g. EPSG:32610; a geographic one "
+                        "such as EPSG:4326 is projected to the data's UTM zone, lon/lat columns are EPSG:4326)")
     p.add_argument("--classes", nargs="+", default=None, help="classes to detect (default: the config's classes)")
+    _add_quiet(p)
     p.set_defaults(func=_detect)
     return ap
 
 
 def main(argv=None) -> int:
     """Entry point of the `sonardet` command; returns the exit status."""
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
     args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("sonardet").setLevel(logging.WARNING if getattr(args, "quiet", False) else logging.NOTSET)
     try:
-        return args.func(args)
+        with warnings.catch_warnings(), logging_redirect_tqdm():  # log lines above a progress bar
+            warnings.showwarning = _log_warning
+            return args.func(args)
     except (ValueError, FileNotFoundError) as exc:
         print(f"sonardet {args.command}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def _log_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Show a library warning (e.g. a file whose z looks positive down) as one log line of the command."""
+    logging.getLogger("sonardet").warning("%s", message)
 
 
 if __name__ == "__main__":

@@ -32,6 +32,8 @@ from typing import Callable
 
 import numpy as np
 
+from sonardet.progress import progress_bar
+
 log = logging.getLogger(__name__)
 
 __all__ = ["Tile", "detect_tiled", "merge_tile_detections", "plan_tiles", "tile_points"]
@@ -194,7 +196,8 @@ def _column_index(x: np.ndarray):
 
 
 def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, overlap_m: float = 3.0,
-                 progress: bool = True, min_overlap_m: float | None = None, dup_dist_m: float = 0.5):
+                 progress: bool = True, min_overlap_m: float | None = None, dup_dist_m: float = 0.5,
+                 bar: bool = False):
     """Run `detect_fn` tile by tile over the points xyz (N,3) (float64 metres, any frame incl. UTM)
     and merge the results.
 
@@ -205,7 +208,8 @@ def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, ove
     column strip is found by bisection (its indices and y values, 16 bytes per point of the strip,
     live while the tile is cut out) and the detector gets a copy of the tile's points only, never of
     the whole cloud. With `progress`, every tile is
-    logged at INFO level ("tile 3/9 t002_000: 51234 points, 2 detections, 4.1 s").
+    logged at INFO level ("tile 3/9 t002_000: 51234 points, 2 detections, 4.1 s"); with `bar`, a progress
+    bar with the time left is drawn on a terminal (`sonardet.progress`).
 
     Returns (detections, per_tile_stats): the merged detections (`merge_tile_detections`, sorted by
     descending score) and one dict per tile {tile, core, padded, n_points, n_detections, n_kept,
@@ -220,7 +224,7 @@ def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, ove
     tiles = plan_tiles((lo[0], lo[1], hi[0], hi[1]), tile_m, overlap_m, min_overlap_m)
     order, xs = _column_index(p[:, 0])
     per_tile, rows = {}, []
-    for k, tile in enumerate(tiles, 1):
+    for k, tile in enumerate(progress_bar(tiles, desc="detect", unit="tile", enabled=bar), 1):
         x0, y0, x1, y1 = tile.padded
         a, b = np.searchsorted(xs, x0, "left"), np.searchsorted(xs, x1, "right")
         col = order[a:b]
