@@ -1,5 +1,6 @@
 """Merge the tile detections of one survey (each object once) and write them in the survey's
-coordinates as JSON, CSV and GeoJSON, with a per-tile summary."""
+coordinates (JSON, CSV + sidecar, GeoJSON in WGS 84 and in the survey CRS, the classified soundings as
+LAZ, the posed meshes as PLY), with a per-tile summary."""
 
 from common import job
 
@@ -8,7 +9,8 @@ from pathlib import Path
 
 from sonardet.io.annotations import read_detections
 from sonardet.io.atomic import atomic_write_text
-from sonardet.survey import merge_survey_detections, read_tile_index, write_survey_detections
+from sonardet.objects import classes as class_specs, read_object
+from sonardet.survey import SurveySource, merge_survey_detections, read_tile_index, survey_chunks, write_survey_detections
 
 with job(snakemake, "survey_detections") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
@@ -19,9 +21,17 @@ with job(snakemake, "survey_detections") as log:  # noqa: F821
     dets, rows = merge_survey_detections(index, tiles, per_tile)
     if not smk.params.all_hypotheses:  # accepted objects only, as `sonardet detect` writes by default
         dets = [d for d in dets if (d.get("extras") or {}).get("accepted", True)]
-    write_survey_detections(dets, smk.output.json, smk.output.csv, smk.output.geojson, survey=survey,
-                            method=smk.params.method, source=smk.params.source, crs=index["crs"],
-                            classes=smk.params.classes)
+    rd = smk.params.read
+    source = SurveySource.of(smk.input.survey, crs=rd["crs"], z_positive=rd["z_positive"], columns=rd["columns"])
+    bounds = ([index["bounds"][0], index["bounds"][1], index["z_range"][0]],
+              [index["bounds"][2], index["bounds"][3], index["z_range"][1]])
+    objects = {Path(p).stem: read_object(p) for p in smk.input.meta}
+    write_survey_detections(
+        dets, smk.output.json, smk.output.csv, smk.output.geojson, survey=survey, method=smk.params.method,
+        source=smk.params.source, crs=index["crs"], classes=smk.params.classes, input_crs=index.get("input_crs"),
+        geojson_crs_path=smk.output.geojson_crs, las_path=smk.output.las, meshes_path=smk.output.objects,
+        soundings=lambda: (c.xyz for c in survey_chunks(source, rd["chunk_points"])[1]), bounds=bounds,
+        objects=objects, colours={c: class_specs.get(c).colour for c in objects})
     for row in rows:
         row["seconds"] = stats[row["tile"]]["seconds"]["total"] if row["tile"] in stats else 0.0
         log.info("%s %s: %d points, %d detections, %d owned by the tile, %.1f s", survey, row["tile"],

@@ -89,15 +89,18 @@ def cell_size_m(path: str | Path, crs: str | None = None) -> float:
             return max(steps) * float(geo.axis_info[0].unit_conversion_factor)
         import pyproj
 
-        lon0, lat0 = t * (ds.width / 2.0, ds.height / 2.0)
+        def node(col: float, row: float) -> tuple[float, float]:
+            return t.a * col + t.b * row + t.c, t.d * col + t.e * row + t.f
+
+        lon0, lat0 = node(ds.width / 2.0, ds.height / 2.0)
         geod = pyproj.Geod(ellps="WGS84")
-        ends = (t * (ds.width / 2.0 + 1, ds.height / 2.0), t * (ds.width / 2.0, ds.height / 2.0 + 1))
+        ends = (node(ds.width / 2.0 + 1, ds.height / 2.0), node(ds.width / 2.0, ds.height / 2.0 + 1))
         return max(float(geod.inv(lon0, lat0, lon, lat)[2]) for lon, lat in ends)
 
 
 def _nodes(ds, row0: int, rows: int, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(x, y, keep mask, flat) of the nodes of `rows` raster rows from `row0`: cell-centre positions in
-    the raster's CRS and band 1's values (masked values and NaN/Inf dropped by the mask)."""
+    """(xyz of the kept nodes (n, 3), keep mask, band-1 values) of `rows` raster rows from `row0`: x, y
+    the cell centres in the raster's CRS, z band 1 as stored; masked (nodata) and NaN/Inf nodes dropped."""
     from rasterio.windows import Window
 
     band = ds.read(1, window=Window(0, row0, ds.width, rows), masked=True)
