@@ -199,7 +199,7 @@ def test_crs_comes_from_the_file(survey, results_dir, tmp_path, capsys):
     las = tmp_path / "survey.las"
     write_points(las, PointCloud(survey[0], crs="EPSG:32610"))
     gj = tmp_path / "d.geojson"
-    assert main(["detect", "--input", str(las), "--out", str(tmp_path / "survey.json"), "--geojson", str(gj),
+    assert main(["detect", "--input", str(las), "--out", str(tmp_path / "survey.json"), "--geojson-crs", str(gj),
                  "--results", str(results_dir), "--classes", "reef_cone", "tetrapod_s"]) == 0
     assert json.loads(gj.read_text())["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::32610"
     assert read_detections(tmp_path / "survey.json")["crs"] == "EPSG:32610"

@@ -5,6 +5,10 @@
     sonardet simulate --config config/config.yaml --objects objects --scene s0000 --out scenes
     sonardet detect --input survey.xyz.gz --crs EPSG:32610 --out det.json --csv det.csv --geojson det.geojson
     sonardet detect --method sasa_100 --model models/sasa_100/model.pt --input survey.xyz.gz --out det.json
+    sonardet detect --input depths.xyz --z-positive down --crs EPSG:32610 --out det.json --las det.laz --meshes det.ply
+    sonardet detect --input survey_lonlat.csv --out det.json --geojson det.geojson   # lon,lat,depth columns
+    sonardet detect --input bathy_0.2m.tif --out det.json --csv det.csv               # GeoTIFF / BAG grids
+    sonardet export-dataset --format openpcdet --results results --out data/custom
 """
 
 from __future__ import annotations
@@ -49,13 +53,42 @@ def _simulate(args) -> int:
     from .config import read_config
     from .objects import read_object
     from .io.scenes import write_scene
+    from .progress import progress_bar
     from .sim.scene import simulate_scene
 
     cfg = read_config(args.config)
     objects = {c: read_object(args.objects / f"{c}.json") for c in cfg["classes"]}
-    scene = simulate_scene(args.scene, cfg, objects)
-    write_scene(scene, args.out / f"{args.scene}.npz", args.out / f"{args.scene}.json")
-    print(json.dumps({k: scene.meta[k] for k in ("stats", "timings_s", "survey")}, indent=1))
+    for sid in progress_bar(args.scene, desc="simulate", unit="scene", enabled=not args.quiet):
+        scene = simulate_scene(sid, cfg, objects)
+        write_scene(scene, args.out / f"{sid}.npz", args.out / f"{sid}.json")
+        if len(args.scene) == 1:
+            print(json.dumps({k: scene.meta[k] for k in ("stats", "timings_s", "survey")}, indent=1))
+        else:
+            logging.getLogger("sonardet.simulate").info("%s: %d soundings, %d objects", sid, len(scene.xyz),
+                                                        len(scene.meta["objects"]))
+    return 0
+
+
+def _export_dataset(args) -> int:
+    """`sonardet export-dataset`: the synthetic dataset in another detector framework's layout."""
+    from .io.openpcdet import export_openpcdet
+    from .progress import progress_bar
+    from .sim.dataset import read_split
+
+    cfg = _config(args)
+    scenes = args.scenes if args.scenes is not None else args.results / "scenes"
+    splits_dir = args.splits if args.splits is not None else args.results / "splits"
+    names = [n for n in ("train", "dev", "test") if (splits_dir / f"{n}.txt").is_file()]
+    if "train" not in names:
+        raise FileNotFoundError(f"{splits_dir / 'train.txt'}: missing; make the splits with `snakemake --cores 2 "
+                                f"results/splits/train.txt` or point --splits at a folder of <split>.txt files")
+    names += sorted(p.stem for p in splits_dir.glob("train_*.txt"))
+    splits = {n: read_split(splits_dir / f"{n}.txt") for n in names}
+    info = export_openpcdet(scenes, splits, args.out, classes=cfg["classes"], feature=args.feature,
+                            progress=lambda ids: progress_bar(ids, desc="export", unit="scene", enabled=not args.quiet))
+    sets = ", ".join(f"{k} {v}" for k, v in info["image_sets"].items())
+    print(f"sonardet export-dataset: {len(info['origins'])} scenes from {scenes} in OpenPCDet's custom layout -> "
+          f"{args.out} (ImageSets: {sets}; dev -> val)")
     return 0
 
 
@@ -213,25 +246,30 @@ def _add_quiet(p: argparse.ArgumentParser) -> None:
                    help="no progress bars and no informational log lines (bars are drawn only on a terminal anyway)")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the `sonardet` command."""
-    ap = argparse.ArgumentParser(prog="sonardet", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = ap.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("export-scene", help="write a scene's soundings as PLY, LAS/LAZ or XYZ text")
-    p.add_argument("scene", type=Path, help="a scene's soundings file, <id>.npz")
-    p.add_argument("out", type=Path, help="output file; the suffix picks the format (.ply .las .laz .xyz .csv)")
-    p.add_argument("--crs", default=None, help="CRS to record (e.g. EPSG:32633); scenes are local by default")
-    p.set_defaults(func=_export_scene)
-    p = sub.add_parser("build-objects", help="build the class meshes of a config")
-    p.add_argument("--config", type=Path, default=Path("config/config.yaml"))
-    p.add_argument("--out", type=Path, required=True, help="folder for {cls}.ply and {cls}.json")
-    p.set_defaults(func=_build_objects)
-    p = sub.add_parser("simulate", help="synthesize one scene")
-    p.add_argument("--config", type=Path, default=Path("config/config.yaml"))
-    p.add_argument("--objects", type=Path, required=True, help="folder with the objects' {cls}.json and {cls}.ply")
-    p.add_argument("--scene", default="s0000")
-    p.add_argument("--out", type=Path, required=True, help="folder for {scene}.npz and {scene}.json")
-    p.set_defaults(func=_simulate)
+def _add_export_dataset_parser(sub) -> None:
+    """The `export-dataset` subcommand."""
+    p = sub.add_parser("export-dataset", help="write the synthetic dataset in a detector framework's layout",
+                       description="The simulated scenes and splits in OpenPCDet's custom-dataset layout "
+                                   "(points/*.npy, labels/*.txt, ImageSets/train|val|test.txt with dev as val), "
+                                   "so any OpenPCDet detector trains on them.")
+    p.add_argument("--format", choices=("openpcdet",), default="openpcdet", help="target layout (openpcdet)")
+    p.add_argument("--results", type=Path, default=Path("results"),
+                   help="workflow results folder holding scenes/ and splits/ (default: results)")
+    p.add_argument("--scenes", type=Path, default=None, help="scene folder (default: <results>/scenes)")
+    p.add_argument("--splits", type=Path, default=None,
+                   help="folder of train.txt, dev.txt, test.txt, train_<f>.txt (default: <results>/splits)")
+    p.add_argument("--out", type=Path, required=True, help="output folder (OpenPCDet's data/custom)")
+    p.add_argument("--feature", choices=("zero", "beam"), default="zero",
+                   help="4th point column: zero (OpenPCDet's intensity slot) or beam (distance from the swath "
+                        "centre, 0..1)")
+    p.add_argument("--config", type=Path, default=None, help="workflow config naming the classes (default: built-in)")
+    p.add_argument("--plugins", nargs="+", default=None, help="plugin modules registering more classes")
+    _add_quiet(p)
+    p.set_defaults(func=_export_dataset)
+
+
+def _add_detect_parser(sub) -> None:
+    """The `detect` subcommand."""
     p = sub.add_parser(
         "detect", help="detect reef structures in a survey point cloud (any registered method, tiled)",
         description="Detection with any registered method (training-free or learned) on a survey file. Coordinates are read in float64 and kept: the "
@@ -289,6 +327,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--classes", nargs="+", default=None, help="classes to detect (default: the config's classes)")
     _add_quiet(p)
     p.set_defaults(func=_detect)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the `sonardet` command."""
+    ap = argparse.ArgumentParser(prog="sonardet", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("export-scene", help="write a scene's soundings as PLY, LAS/LAZ or XYZ text")
+    p.add_argument("scene", type=Path, help="a scene's soundings file, <id>.npz")
+    p.add_argument("out", type=Path, help="output file; the suffix picks the format (.ply .las .laz .xyz .csv)")
+    p.add_argument("--crs", default=None, help="CRS to record (e.g. EPSG:32633); scenes are local by default")
+    _add_quiet(p)
+    p.set_defaults(func=_export_scene)
+    p = sub.add_parser("build-objects", help="build the class meshes of a config")
+    p.add_argument("--config", type=Path, default=Path("config/config.yaml"))
+    p.add_argument("--out", type=Path, required=True, help="folder for {cls}.ply and {cls}.json")
+    _add_quiet(p)
+    p.set_defaults(func=_build_objects)
+    p = sub.add_parser("simulate", help="synthesize one scene")
+    p.add_argument("--config", type=Path, default=Path("config/config.yaml"))
+    p.add_argument("--objects", type=Path, required=True, help="folder with the objects' {cls}.json and {cls}.ply")
+    p.add_argument("--scene", nargs="+", default=["s0000"], help="scene id(s) (default s0000)")
+    p.add_argument("--out", type=Path, required=True, help="folder for {scene}.npz and {scene}.json")
+    _add_quiet(p)
+    p.set_defaults(func=_simulate)
+    _add_export_dataset_parser(sub)
+    _add_detect_parser(sub)
     return ap
 
 
