@@ -30,6 +30,7 @@ __all__ = [
     "Projection",
     "check_lonlat_range",
     "crs_string",
+    "has_horizontal",
     "horizontal_crs",
     "is_geographic",
     "is_projected",
@@ -95,6 +96,15 @@ def is_projected(crs: str | None) -> bool:
     """Whether the CRS string's horizontal part is projected (metres or feet on a map plane); None:
     False."""
     return crs is not None and bool(horizontal_crs(parse_crs(crs)).is_projected)
+
+
+def has_horizontal(crs: str | None) -> bool:
+    """Whether positions in the CRS string can be placed on the globe: its horizontal part is projected or
+    geographic (False for None and for a vertical-only CRS)."""
+    if crs is None:
+        return False
+    h = horizontal_crs(parse_crs(crs))
+    return bool(h.is_projected or h.is_geographic)
 
 
 def _utm_of(geo, lon: float, lat: float):

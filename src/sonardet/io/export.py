@@ -42,7 +42,7 @@ import numpy as np
 from .. import SCHEMA_VERSION
 from ..geometry import box_corners
 from .atomic import atomic_write_text
-from .crs import LONLAT_CRS, lonlat_of
+from .crs import LONLAT_CRS, has_horizontal, lonlat_of
 
 log = logging.getLogger(__name__)
 
@@ -93,19 +93,21 @@ def write_detections_csv(path, dets, crs: str | None = None, source: str | None 
     """Write detections (dicts {cls, box [x,y,z,l,w,h,yaw], score, pose {t, q} (optional)}; metres and
     radians, in the frame the boxes are in, the CRS ``crs``) as CSV to `path` (see the module doc), and
     with ``sidecar`` its JSON sidecar (`csv_sidecar_path`: columns with units, crs, source); atomically.
-    lon/lat columns (WGS 84 degrees of the box centres) are written when ``crs`` is given (pyproj).
+    lon/lat columns (WGS 84 degrees of the box centres) are written when ``crs`` places positions on the
+    globe (a projected or geographic horizontal part; pyproj).
     Returns the sidecar document. Raises ValueError for a box that is not 7 finite numbers."""
     dets = list(dets)
     boxes = [_box(d, k) for k, d in enumerate(dets)]
     with_pose = any(d.get("pose") is not None for d in dets)
-    lonlat = _lonlat(boxes, crs) if crs is not None else None
-    columns = CSV_COLUMNS + (LONLAT_COLUMNS if crs is not None else ()) + (POSE_COLUMNS if with_pose else ())
+    georef = has_horizontal(crs)
+    lonlat = _lonlat(boxes, crs) if georef else None
+    columns = CSV_COLUMNS + (LONLAT_COLUMNS if georef else ()) + (POSE_COLUMNS if with_pose else ())
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(columns)
     for k, d in enumerate(dets):
         row = [str(d["cls"])] + [_num(v) for v in boxes[k]] + [_num(d["score"])]
-        if crs is not None:
+        if georef:
             row += [_num(lonlat[0][k]), _num(lonlat[1][k])]
         if with_pose:
             pose = d.get("pose")
@@ -113,7 +115,7 @@ def write_detections_csv(path, dets, crs: str | None = None, source: str | None 
         w.writerow(row)
     frame = f"{crs}" if crs else "the input's coordinates (CRS unknown)"
     meta = {"schema_version": SCHEMA_VERSION, "file": Path(path).name, "source": source, "crs": crs,
-            "lonlat_crs": LONLAT_CRS if crs is not None else None, "n_rows": len(dets),
+            "lonlat_crs": LONLAT_CRS if georef else None, "n_rows": len(dets),
             "columns": {c: _COLUMN_DOC[c].format(frame=frame) for c in columns}}
     atomic_write_text(path, buf.getvalue())
     if sidecar:
@@ -174,8 +176,9 @@ def write_detections_geojson(path, dets, crs: str) -> dict:
     `path`, atomically: footprint polygons in WGS 84 longitude, latitude (degrees; pyproj, always_xy),
     no ``crs`` member; returns the document. Raises ValueError without a CRS (the positions cannot be
     placed on the globe: give the input's CRS, or use `write_detections_geojson_crs`)."""
-    if crs is None:
-        raise ValueError(f"{path}: RFC 7946 GeoJSON is in longitude/latitude and the detections' CRS is unknown; "
+    if not has_horizontal(crs):
+        raise ValueError(f"{path}: RFC 7946 GeoJSON is in longitude/latitude and the detections' horizontal CRS "
+                         f"is unknown ({crs}); "
                          "give the input's CRS (--crs), or write the GeoJSON in the input's coordinates instead")
     doc = {"type": "FeatureCollection", "features": _features(dets, lambda x, y: lonlat_of(x, y, crs))}
     atomic_write_text(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")

@@ -44,6 +44,7 @@ from sonardet import SCHEMA_VERSION
 from sonardet.geometry import box_corners, points_in_box, quat_to_matrix
 from sonardet.io.annotations import to_builtin, validate_detections
 from sonardet.io.atomic import atomic_write_text
+from sonardet.io.crs import has_horizontal
 from sonardet.io.export import (
     csv_sidecar_path,
     write_detections_csv,
@@ -103,10 +104,10 @@ class OutputPaths:
         if self.meshes is not None and not have_objects:
             raise ValueError(f"--meshes {self.meshes}: needs the object models (objects/<cls>.json|.ply under "
                              "--results)")
-        if self.geojson is not None and crs is None:
+        if self.geojson is not None and not has_horizontal(crs):
             raise ValueError(f"--geojson {self.geojson}: RFC 7946 GeoJSON is in longitude/latitude and the input's "
-                             "CRS is unknown; give it with --crs (e.g. EPSG:32610), or write the footprints in the "
-                             "input's coordinates with --geojson-crs")
+                             f"horizontal CRS is unknown ({crs}); give it with --crs (e.g. EPSG:32610), or write the "
+                             "footprints in the input's coordinates with --geojson-crs")
 
 
 def classify_soundings(xyz: np.ndarray, dets: Sequence[Mapping], classes: Sequence[str],

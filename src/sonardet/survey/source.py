@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from itertools import chain
 from pathlib import Path
 
-from sonardet.io.crs import Projection, check_lonlat_range, is_geographic, utm_projection
+from sonardet.io.crs import Projection, check_lonlat_range, is_geographic, parse_crs, utm_projection
 from sonardet.io.points import DEFAULT_CHUNK_POINTS, PointCloud, PointCloudError, grid_cell_m, iter_chunks, read_points
 
 __all__ = ["MAX_GRID_CELL_M", "SurveySource", "read_survey", "survey_chunks"]
@@ -66,7 +66,10 @@ class SurveySource:
 
     def check_grid(self) -> float | None:
         """The node spacing (m) of a gridded file, None for soundings; a grid coarser than `max_cell_m`
-        raises PointCloudError naming the file and the limit."""
+        raises PointCloudError naming the file and the limit. A ``crs`` pyproj cannot parse raises first
+        (CrsError naming ``--crs``)."""
+        if self.crs is not None:
+            parse_crs(self.crs, str(self.path), "--crs")
         cell = grid_cell_m(self.path, self.crs)
         if cell is not None and cell > self.max_cell_m + 1e-9:
             raise PointCloudError(
