@@ -71,3 +71,13 @@ def test_export_refuses_missing_scenes_and_features(results, tmp_path, capsys):
         export_openpcdet(results / "scenes", {"train": ["s0000"]}, tmp_path / "o", classes=CLASSES, feature="beam")
     assert main(["export-dataset", "--results", str(tmp_path / "nothing"), "--out", str(tmp_path / "o")]) == 2
     assert "train.txt: missing" in capsys.readouterr().err
+
+
+def test_progress_bars_are_quiet_off_a_terminal_and_with_quiet(capsys):
+    """The long steps' bars (sonardet.progress) draw only on a terminal and never with --quiet."""
+    from sonardet.progress import progress_bar
+
+    bar = progress_bar(range(3), desc="export", enabled=True)  # pytest's stderr is not a terminal
+    assert list(bar) == [0, 1, 2] and bar.disable
+    assert progress_bar(range(3), enabled=False).disable
+    assert capsys.readouterr().err == ""

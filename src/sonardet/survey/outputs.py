@@ -230,6 +230,8 @@ def write_survey_outputs(dets: list, paths: OutputPaths, meta: SurveyMeta, *,
     ``meta.crs``), and ``bounds`` their (lo, hi), for the classified LAS; objects (class -> ObjectInfo)
     and colours (class -> '#RRGGBB') for the meshes. Each file is written atomically.
     """
+    if paths.las is not None and (soundings is None or bounds is None):
+        raise ValueError(f"{paths.las}: the classified soundings need the soundings and their bounds")
     # The JSON first: it is validated, so a bad detection stops before any other file is written.
     doc = {"schema_version": SCHEMA_VERSION, "scene": meta.survey, "method": meta.method, "source": str(meta.source),
            "crs": meta.crs, "input_crs": meta.input_crs, "detections": to_builtin(list(dets))}
