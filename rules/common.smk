@@ -551,11 +551,19 @@ SURVEY_METHOD = {
 }
 
 
-#: Final outputs of every survey.
+#: Final outputs of every survey (rules/survey.smk, rule survey_detections).
 SURVEY_OUTPUTS = expand(
-    "results/surveys/{survey}/detections.{ext}",
+    "results/surveys/{survey}/{name}",
     survey=SURVEYS,
-    ext=["json", "csv", "geojson"],
+    name=[
+        "detections.json",
+        "detections.csv",
+        "detections.csv.json",
+        "detections.geojson",
+        "detections_crs.geojson",
+        "soundings.laz",
+        "objects.ply",
+    ],
 )
 
 

@@ -3,7 +3,9 @@
 #   checkpoint survey_tiles   survey file -> tiles/{tile}.npz (padded tile points) + tile_index.json
 #   detect_survey_tile        one tile's points -> its detections (survey coordinates)
 #   survey_detections         merge of the tiles (each object once, by the tile owning its centre)
-#                             -> detections.{json,csv,geojson} in the survey's coordinates/CRS
+#                             -> detections.{json,csv,geojson}, detections_crs.geojson, the classified
+#                             soundings (soundings.laz) and the posed meshes (objects.ply), in the
+#                             survey's coordinates/CRS (sonardet.survey.outputs, as `sonardet detect`)
 # The tiles to detect are known only once the survey is read: survey_detections asks the checkpoint's
 # tile index for them. Library: sonardet.survey (split, merge, tiling, settings).
 wildcard_constraints:
@@ -33,7 +35,15 @@ checkpoint survey_tiles:
     params:
         split=lambda w: {
             k: SURVEYS[w.survey][k]
-            for k in ("crs", "tile_m", "overlap_m", "chunk_points", "keep_fliers")
+            for k in (
+                "crs",
+                "z_positive",
+                "columns",
+                "tile_m",
+                "overlap_m",
+                "chunk_points",
+                "keep_fliers",
+            )
         },
     script:
         "../workflow_scripts/survey_tiles.py"
@@ -64,6 +74,9 @@ rule detect_survey_tile:
 
 rule survey_detections:
     input:
+        survey=lambda w: SURVEYS[w.survey]["path"],
+        meshes=object_files("ply"),
+        meta=object_files("json"),
         index="results/surveys/{survey}/tile_index.json",
         detections=lambda w: expand(
             "results/surveys/{survey}/tile_detections/{tile}.json",
@@ -78,7 +91,11 @@ rule survey_detections:
     output:
         json="results/surveys/{survey}/detections.json",
         csv="results/surveys/{survey}/detections.csv",
+        csv_meta="results/surveys/{survey}/detections.csv.json",
         geojson="results/surveys/{survey}/detections.geojson",
+        geojson_crs="results/surveys/{survey}/detections_crs.geojson",
+        las="results/surveys/{survey}/soundings.laz",
+        objects="results/surveys/{survey}/objects.ply",
         summary="results/surveys/{survey}/summary.json",
     log:
         "results/logs/survey_detections/{survey}.log",
@@ -94,6 +111,10 @@ rule survey_detections:
         method=lambda w: SURVEY_METHOD[w.survey].name,
         all_hypotheses=lambda w: SURVEYS[w.survey]["all_hypotheses"],
         source=lambda w: SURVEYS[w.survey]["path"],
+        read=lambda w: {
+            k: SURVEYS[w.survey][k]
+            for k in ("crs", "z_positive", "columns", "chunk_points")
+        },
         classes=CLASSES,
     script:
         "../workflow_scripts/survey_detections.py"

@@ -255,13 +255,18 @@ def test_headerless_extra_columns_and_columns_override(tmp_path):
     np.testing.assert_array_equal(named.attributes["beam"], [20, 21])
 
 
-def test_depth_column_is_refused_unless_asked(tmp_path):
+def test_depth_column_is_positive_down(tmp_path):
+    """A `depth` column is read as z = -depth; depths that are mostly negative are elevations already
+    and refused naming --z-positive up, which reads them as z."""
     path = write_text(tmp_path / "d.csv", "x,y,depth\n1,2,10.5\n3,4,11.0\n")
-    with pytest.raises(PointCloudError, match="depth_to_z=True"):
-        read_points(path)
-    cloud = read_points(path, depth_to_z=True)
+    cloud = read_points(path)
     np.testing.assert_array_equal(cloud.xyz[:, 2], [-10.5, -11.0])
     assert "depth" not in cloud.attributes
+    np.testing.assert_array_equal(read_points(path, z_positive="down").xyz[:, 2], [-10.5, -11.0])
+    up = write_text(tmp_path / "u.csv", "x,y,depth\n1,2,-10.5\n3,4,-11.0\n")
+    with pytest.raises(PointCloudError, match=r"u\.csv: .*read as depths.*--z-positive up"):
+        read_points(up)
+    np.testing.assert_array_equal(read_points(up, z_positive="up").xyz[:, 2], [-10.5, -11.0])
     both = read_points(write_text(tmp_path / "b.csv", "x,y,z,depth\n1,2,-3,3\n"))
     np.testing.assert_array_equal(both.xyz, [[1, 2, -3]])
     np.testing.assert_array_equal(both.attributes["depth"], [3])
@@ -270,7 +275,7 @@ def test_depth_column_is_refused_unless_asked(tmp_path):
 @pytest.mark.parametrize(
     "text, match",
     [
-        ("lon,lat,z\n-122.37,37.75,-10\n", "geographic"),
+        ("lon,z\n-122.37,-10\n", r"cannot find column\(s\) \['x', 'y'\]"),
         ("x,easting,y,z\n1,2,3,4\n", "all name x"),
         ("a,b,c\n1,2,3\n", r"cannot find column\(s\) \['x', 'y', 'z'\]"),
         ("x,y,z,x\n1,2,3,4\n", "duplicate column names"),
@@ -387,8 +392,10 @@ def test_missing_file_and_text_only_options(tmp_path):
     with pytest.raises(FileNotFoundError):
         read_points(tmp_path / "nope.xyz")
     path = write_points(tmp_path / "a.npz", scene_cloud())
-    with pytest.raises(PointCloudError, match="text files only"):
+    with pytest.raises(PointCloudError, match=r"columns \(--columns\) do\(es\) not apply to npz files"):
         read_points(path, columns=["x", "y", "z"])
+    with pytest.raises(PointCloudError, match=r"z_positive \(--z-positive\) do\(es\) not apply to npz files"):
+        read_points(path, z_positive="down")
 
 
 # ---------------------------------------------------------------------------- npz contract
@@ -424,7 +431,7 @@ def test_crs_argument_sets_and_must_agree(tmp_path):
     assert read_points(txt, crs="EPSG:32610").crs == "EPSG:32610"
 
 
-def test_las_crs_is_a_standard_wkt_record_without_pyproj(tmp_path):
+def test_las_crs_is_a_standard_wkt1_record(tmp_path):
     path = write_points(tmp_path / "a.las", scene_cloud())
     las = laspy.read(path)
     assert las.header.version == laspy.header.Version(1, 4) and las.header.point_format.id == 6
@@ -455,44 +462,14 @@ def test_las_crs_from_geotiff_keys_and_other_crs_fallback(tmp_path):
     assert list(cloud.attributes) == ["classification"]  # all-zero standard fields are left out
     np.testing.assert_allclose(cloud.xyz, [[5e5 + 1.0, 4e6 + 2.0, -11.0]], rtol=0, atol=1e-9)
 
-    try:
-        import pyproj  # noqa: F401
-    except ImportError:
-        other = PointCloud(utm_points(5), crs="EPSG:2193")
-        with pytest.warns(UserWarning, match="sonardet' VLR"):
-            write_points(tmp_path / "nz.laz", other)
-        assert read_points(tmp_path / "nz.laz").crs == "EPSG:2193"
-
-
-@pytest.mark.parametrize(
-    "wkt, expected",
-    [
-        # GDAL >= 3 style: the CRS's own authority last
-        ('PROJCS["WGS 84 / UTM zone 10N",GEOGCS["WGS 84",AUTHORITY["EPSG","4326"]],'
-         'UNIT["metre",1,AUTHORITY["EPSG","9001"]],AUTHORITY["EPSG","32610"]]', "EPSG:32610"),
-        # older GDAL: authority before the AXIS nodes
-        ('PROJCS["WGS 84 / UTM zone 10N",GEOGCS["WGS 84",AUTHORITY["EPSG","4326"]],'
-         'AUTHORITY["EPSG","32610"],AXIS["Easting",EAST],AXIS["Northing",NORTH]]', "EPSG:32610"),
-        # WKT2
-        ('PROJCRS["WGS 84 / UTM zone 10N",BASEGEOGCRS["WGS 84",ID["EPSG",4326]],ID["EPSG",32610]]', "EPSG:32610"),
-        # no authority of its own: a nested one must not be taken; the WKT itself is kept
-        ('PROJCS["custom",GEOGCS["WGS 84",AUTHORITY["EPSG","4326"]],UNIT["metre",1]]', None),
-    ],
-    ids=["wkt1", "wkt1-axis-last", "wkt2", "custom"],
-)
-def test_crs_from_wkt_takes_the_outermost_authority(wkt, expected):
-    from sonardet.io.points.las import _crs_from_wkt
-
-    assert _crs_from_wkt(wkt) == (expected or wkt)
-
-
-def test_utm_wkt_for_both_hemispheres():
-    from sonardet.io.points.las import utm_wkt
-
-    south = utm_wkt("EPSG:32733")
-    assert '"WGS 84 / UTM zone 33S"' in south and '"central_meridian",15]' in south
-    assert '"false_northing",10000000]' in south
-    assert utm_wkt("EPSG:2193") is None and utm_wkt("EPSG:32661") is None
+    other = PointCloud(utm_points(5), crs="EPSG:2193")
+    write_points(tmp_path / "nz.laz", other)
+    assert read_points(tmp_path / "nz.laz").crs == "EPSG:2193"
+    compound = PointCloud(utm_points(5), crs="EPSG:32610+5703")
+    write_points(tmp_path / "navd88.laz", compound)
+    assert read_points(tmp_path / "navd88.laz").crs == "EPSG:32610+5703"
+    with pytest.raises(PointCloudError, match="pyproj does not understand"):
+        write_points(tmp_path / "bad.las", PointCloud(utm_points(5), crs="EPSG:99999999"))
 
 
 def test_las_standard_field_must_fit(tmp_path):

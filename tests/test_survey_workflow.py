@@ -78,13 +78,16 @@ def _recorded_tiled_inputs(xyz, tile_m, overlap_m):
 # ------------------------------------------------------------------------------------------ settings
 def test_survey_settings_take_the_schema_defaults():
     s = survey_settings("line1", {"path": "a.xyz"})
-    assert s == {"name": "line1", "path": "a.xyz", "enabled": True, "crs": None, "method": "model_based_ours", "tile_m": 40.0,
-                 "overlap_m": 3.0, "chunk_points": 1_000_000, "all_hypotheses": False, "keep_fliers": False}
-    # The defaults are those of `sonardet detect` (tile 40 m, overlap 3 m, fliers left out).
+    assert s == {"name": "line1", "path": "a.xyz", "enabled": True, "crs": None, "z_positive": None, "columns": None,
+                 "method": "model_based_ours", "tile_m": 40.0, "overlap_m": 3.0, "chunk_points": 1_000_000,
+                 "all_hypotheses": False, "keep_fliers": False}
+    # The defaults are those of `sonardet detect` (tile 40 m, overlap 3 m, z direction and columns from the
+    # file, fliers left out).
     from sonardet.cli import build_parser
 
     args = build_parser().parse_args(["detect", "--input", "a", "--out", "b"])
-    assert (args.tile_m, args.overlap_m, args.keep_fliers) == (s["tile_m"], s["overlap_m"], s["keep_fliers"])
+    assert (args.tile_m, args.overlap_m, args.z_positive, args.columns, args.keep_fliers) == (
+        s["tile_m"], s["overlap_m"], None, None, s["keep_fliers"])
     with pytest.raises(ValueError, match="surveys.x: needs `path`"):
         survey_settings("x", {})
 
@@ -310,11 +313,13 @@ def test_outputs_are_in_the_survey_coordinates(tmp_path):
     back = read_detections(tmp_path / "d.json", expected_scene="line1")
     assert back["detections"][0]["box"] == dets[0]["box"] and back["crs"] == "EPSG:32610" == doc["crs"]
     assert back["source"] == "data/line1.xyz"
-    assert (tmp_path / "d.csv").read_text().startswith("# coordinates: EPSG:32610 metres, as in line1.xyz")
-    assert pd.read_csv(tmp_path / "d.csv", comment="#")["x"].tolist() == [550012.345678901]
-    gj = json.loads((tmp_path / "d.geojson").read_text())
-    assert gj["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::32610"
-    assert np.allclose(np.array(gj["features"][0]["geometry"]["coordinates"][0])[:4].mean(0), dets[0]["box"][:2])
+    assert (tmp_path / "d.csv").read_text().startswith("cls,x,y,z,l,w,h,yaw_rad,score,lon,lat")  # no comment line
+    assert pd.read_csv(tmp_path / "d.csv")["x"].tolist() == [550012.345678901]
+    assert json.loads((tmp_path / "d.csv.json").read_text())["crs"] == "EPSG:32610"
+    gj = json.loads((tmp_path / "d.geojson").read_text())  # RFC 7946: lon/lat, no crs member
+    assert "crs" not in gj
+    lon, lat = np.array(gj["features"][0]["geometry"]["coordinates"][0])[:4].mean(0)
+    assert -124 < lon < -122 and 37 < lat < 38.5
 
 
 def test_tile_index_of_another_version_is_refused(tmp_path):
@@ -452,16 +457,24 @@ def test_outputs_in_the_survey_coordinates(survey_run):
     lo, hi = np.array(index["bounds"][:2]), np.array(index["bounds"][2:])
     assert np.all(boxes[:, :2] > lo - 2.0) and np.all(boxes[:, :2] < hi + 2.0)  # UTM, not local
     assert np.all(boxes[:, 0] > 5e5) and np.all(boxes[:, 1] > 4e6)
-    df = pd.read_csv(survey_run.out / "detections.csv", comment="#")
+    df = pd.read_csv(survey_run.out / "detections.csv")
     assert df[["x", "y", "z"]].to_numpy().tolist() == boxes[:, :3].tolist()  # bit-identical
-    assert (survey_run.out / "detections.csv").read_text().startswith("# coordinates: EPSG:32610 metres")
-    gj = json.loads((survey_run.out / "detections.geojson").read_text())
+    assert json.loads((survey_run.out / "detections.csv.json").read_text())["crs"] == "EPSG:32610"
+    assert "crs" not in json.loads((survey_run.out / "detections.geojson").read_text())  # RFC 7946, WGS 84
+    gj = json.loads((survey_run.out / "detections_crs.geojson").read_text())
     assert gj["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::32610" and len(gj["features"]) == len(dets)
     ring = np.array(gj["features"][0]["geometry"]["coordinates"][0])
     assert np.allclose(ring[:4].mean(0), boxes[0, :2], rtol=0, atol=1e-6)
     summary = json.loads((survey_run.out / "summary.json").read_text())
     assert summary["n_tiles"] == 6 and summary["n_detections"] == len(dets)
     assert sum(r["n_points"] for r in summary["tiles"]) > summary["n_points"]  # overlaps counted per tile
+    # The classified soundings: every sounding of the survey once, objects' soundings in class 43.
+    las = read_points(survey_run.out / "soundings.laz")
+    assert len(las) == index["n_points"] and las.crs == "EPSG:32610"
+    ids = las.attributes["object_id"]
+    assert set(np.unique(las.attributes["classification"])) == {2, 43}
+    assert set(np.unique(ids[ids >= 0])) == set(range(len(dets)))
+    assert (survey_run.out / "objects.ply").read_bytes().startswith(b"ply")
     # A tile file: the survey's float64 coordinates with the local origin beside them.
     cloud = read_points(survey_run.out / "tiles" / "t001_000.npz")
     assert cloud.xyz[:, 0].min() > 5e5 and np.array_equal(cloud.origin, index["origin"])

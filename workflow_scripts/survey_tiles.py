@@ -17,10 +17,10 @@ with job(snakemake, "survey_tiles") as log:  # noqa: F821
     try:
         doc = split_survey(smk.input.survey, smk.output.tiles, smk.output.index, survey=survey,
                            tile_m=cfg["tile_m"], overlap_m=cfg["overlap_m"], crs=cfg["crs"],
-                           min_overlap_m=footprint, chunk_points=cfg["chunk_points"],
-                           keep_fliers=cfg["keep_fliers"])
+                           min_overlap_m=footprint, chunk_points=cfg["chunk_points"], z_positive=cfg["z_positive"],
+                           columns=cfg["columns"], keep_fliers=cfg["keep_fliers"])
     except ValueError as exc:
         raise ValueError(f"surveys.{survey}: {exc}") from exc
-    log.info("%s: %d points, %d tiles (%d x %d, %d with points), origin %s, CRS %s", survey, doc["n_points"],
-             len(doc["tiles"]), doc["nx"], doc["ny"], sum(t["file"] is not None for t in doc["tiles"]),
-             doc["origin"], doc["crs"])
+    log.info("%s: %d points, %d tiles (%d x %d, %d with points), origin %s, CRS %s (input %s)", survey,
+             doc["n_points"], len(doc["tiles"]), doc["nx"], doc["ny"], sum(t["file"] is not None for t in doc["tiles"]),
+             doc["origin"], doc["crs"], doc["input_crs"])

@@ -5,6 +5,10 @@
     sonardet simulate --config config/config.yaml --objects objects --scene s0000 --out scenes
     sonardet detect --input survey.xyz.gz --crs EPSG:32610 --out det.json --csv det.csv --geojson det.geojson
     sonardet detect --method sasa_100 --model models/sasa_100/model.pt --input survey.xyz.gz --out det.json
+    sonardet detect --input depths.xyz --z-positive down --crs EPSG:32610 --out det.json --las det.laz --meshes det.ply
+    sonardet detect --input survey_lonlat.csv --out det.json --geojson det.geojson   # lon,lat,depth columns
+    sonardet detect --input bathy_0.2m.tif --out det.json --csv det.csv               # GeoTIFF / BAG grids
+    sonardet export-dataset --format openpcdet --results results --out data/custom
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import argparse
 import json
 import logging
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -46,15 +51,44 @@ def _build_objects(args) -> int:
 
 def _simulate(args) -> int:
     from .config import read_config
-    from .objects import read_object
     from .io.scenes import write_scene
+    from .objects import read_object
+    from .progress import progress_bar
     from .sim.scene import simulate_scene
 
     cfg = read_config(args.config)
     objects = {c: read_object(args.objects / f"{c}.json") for c in cfg["classes"]}
-    scene = simulate_scene(args.scene, cfg, objects)
-    write_scene(scene, args.out / f"{args.scene}.npz", args.out / f"{args.scene}.json")
-    print(json.dumps({k: scene.meta[k] for k in ("stats", "timings_s", "survey")}, indent=1))
+    for sid in progress_bar(args.scene, desc="simulate", unit="scene", enabled=not args.quiet):
+        scene = simulate_scene(sid, cfg, objects)
+        write_scene(scene, args.out / f"{sid}.npz", args.out / f"{sid}.json")
+        if len(args.scene) == 1:
+            print(json.dumps({k: scene.meta[k] for k in ("stats", "timings_s", "survey")}, indent=1))
+        else:
+            logging.getLogger("sonardet.simulate").info("%s: %d soundings, %d objects", sid, len(scene.xyz),
+                                                        len(scene.meta["objects"]))
+    return 0
+
+
+def _export_dataset(args) -> int:
+    """`sonardet export-dataset`: the synthetic dataset in another detector framework's layout."""
+    from .io.openpcdet import export_openpcdet
+    from .progress import progress_bar
+    from .sim.dataset import read_split
+
+    cfg = _config(args)
+    scenes = args.scenes if args.scenes is not None else args.results / "scenes"
+    splits_dir = args.splits if args.splits is not None else args.results / "splits"
+    names = [n for n in ("train", "dev", "test") if (splits_dir / f"{n}.txt").is_file()]
+    if "train" not in names:
+        raise FileNotFoundError(f"{splits_dir / 'train.txt'}: missing; make the splits with `snakemake --cores 2 "
+                                f"results/splits/train.txt` or point --splits at a folder of <split>.txt files")
+    names += sorted(p.stem for p in splits_dir.glob("train_*.txt"))
+    splits = {n: read_split(splits_dir / f"{n}.txt") for n in names}
+    info = export_openpcdet(scenes, splits, args.out, classes=cfg["classes"], feature=args.feature,
+                            progress=lambda ids: progress_bar(ids, desc="export", unit="scene", enabled=not args.quiet))
+    sets = ", ".join(f"{k} {v}" for k, v in info["image_sets"].items())
+    print(f"sonardet export-dataset: {len(info['origins'])} scenes from {scenes} in OpenPCDet's custom layout -> "
+          f"{args.out} (ImageSets: {sets}; dev -> val)")
     return 0
 
 
@@ -137,66 +171,63 @@ def _footprint_m(objects: dict | None, classes: list[str], cfg: dict) -> float:
     return max(2.0 * footprint_radius_m(c, cfg["objects"]) for c in classes)
 
 
+def _class_colours(classes: list[str]) -> dict[str, str]:
+    """Report colour of each class (its spec), for the posed meshes."""
+    from .objects import classes as class_specs
+
+    return {c: class_specs.get(c).colour for c in classes}
+
+
+def _detect_run(args, cfg: dict, classes: list[str]):
+    """The method of `sonardet detect`, loaded (sonardet.survey.DetectRun), with the object models."""
+    from . import methods
+    from .methods import Resources
+    from .survey import DetectRun, plan_tiles
+
+    method = _detect_method(args, cfg)
+    kinds = set(method.resources) | ({"objects"} if args.meshes is not None else set())
+    objects, templates = _detect_inputs(args.results, classes, kinds)
+    footprint = _footprint_m(objects, classes, cfg)
+    plan_tiles((0.0, 0.0, 0.0, 0.0), args.tile_m, args.overlap_m, footprint)  # bad tiling fails before loading
+    model = args.model if args.model is not None else args.results / "models" / method.name / "model.pt"
+    if "model" in method.resources and not model.is_file():
+        raise FileNotFoundError(f"{model}: no trained model for {method.name}; train it with `snakemake --cores 2 "
+                                f"{model}` in the workflow folder or give its file with --model")
+    detector = methods.family(method.family).load(method, Resources(
+        objects=objects, templates=templates, model_path=model if "model" in method.resources else None,
+        threads=args.threads))
+    return DetectRun(method.name, detector, classes, args.tile_m, args.overlap_m, footprint, args.all_hypotheses,
+                     keep_fliers=args.keep_fliers, objects=objects, colours=_class_colours(classes),
+                     progress=not args.quiet)
+
+
 def _run_detect(args) -> int:
     import time
 
-    from . import SCHEMA_VERSION, methods
-    from .io.annotations import to_builtin, validate_detections
-    from .io.atomic import atomic_outputs, atomic_write_text, check_writable
-    from .io.export import write_detections_csv, write_detections_geojson
-    from .io.points import read_points
-    from .methods import Resources
-    from .survey import detect_survey, plan_tiles
+    from .survey import OutputPaths, SurveySource, detect_survey_file
 
     t0 = time.perf_counter()
     cfg = _config(args)
     classes = list(args.classes) if args.classes else list(cfg["classes"])
     cfg["classes"] = classes
-    method = _detect_method(args, cfg)
-    objects, templates = _detect_inputs(args.results, classes, method.resources)
-    model = args.model if args.model is not None else args.results / "models" / method.name / "model.pt"
-    if "model" in method.resources and not model.is_file():
-        raise FileNotFoundError(f"{model}: no trained model for {method.name}; train it with `snakemake --cores 2 "
-                                f"{model}` in the workflow folder or give its file with --model")
-    footprint = _footprint_m(objects, classes, cfg)
-    plan_tiles((0.0, 0.0, 0.0, 0.0), args.tile_m, args.overlap_m, footprint)  # bad tiling fails before reading
-    outputs = [p for p in (args.out, args.csv, args.geojson) if p is not None]
-    check_writable(outputs)  # an output that cannot be written fails before the detection, not after
-    detector = methods.family(method.family).load(method, Resources(
-        objects=objects, templates=templates, model_path=model if "model" in method.resources else None,
-        threads=args.threads))
-    cloud = read_points(args.input, crs=args.crs)
-    xyz = cloud.xyz
-    if len(xyz) == 0:
-        raise ValueError(f"{args.input}: no points")
-    t = time.perf_counter()
-    # Fliers (a few soundings far from the rest) dropped unless --keep-fliers; tiles only near the data.
-    dets, run = detect_survey(xyz, detector, args.tile_m, args.overlap_m, footprint, args.keep_fliers, str(args.input))
-    n_tiles = run["n_tiles"]
-    t_detect = time.perf_counter() - t
-    n_all = len(dets)
-    if not args.all_hypotheses:  # boxes the method accepted as objects (a tail of rejected ones only on request)
-        dets = [d for d in dets if (d.get("extras") or {}).get("accepted", True)]
-
-    # The detection file's scene id is the output file's stem: the project's reader
-    # (io.annotations.read_detections) checks that id against the file name by default.
-    frame = f"{cloud.crs} metres" if cloud.crs else "the input file's coordinates (metres, CRS unknown)"
-    doc = {"schema_version": SCHEMA_VERSION, "scene": args.out.stem, "method": method.name,
-           "source": str(args.input), "crs": cloud.crs, "detections": to_builtin(dets)}
-    doc = validate_detections(doc, args.out, classes, args.out.stem)
-    with atomic_outputs(outputs) as staged:  # every output or none
-        tmp = dict(zip(outputs, staged))
-        atomic_write_text(tmp[args.out], json.dumps(doc, indent=1, allow_nan=False) + "\n")
-        if args.csv is not None:
-            write_detections_csv(tmp[args.csv], dets, origin_note=f"coordinates: {frame}, as in {args.input.name}; "
-                                                                  "yaw_rad about +z")
-        if args.geojson is not None:
-            write_detections_geojson(tmp[args.geojson], dets, crs=cloud.crs)
+    paths = OutputPaths.of(json=args.out, csv=args.csv, geojson=args.geojson, geojson_crs=args.geojson_crs,
+                           las=args.las, meshes=args.meshes)
+    paths.check_suffixes()  # the CRS is known once the file is read
+    run = _detect_run(args, cfg, classes)
+    source = SurveySource.of(args.input, crs=args.crs, z_positive=args.z_positive, columns=args.columns)
+    # The JSON's scene id is the output file's stem: the project's reader (io.annotations.read_detections)
+    # checks that id against the file name by default.
+    res = detect_survey_file(source, run, paths, name=args.out.stem)
+    dets = res.doc["detections"]
     n_acc = sum(bool(d.get("extras", {}).get("accepted", True)) for d in dets)
-    kept = "all hypotheses" if args.all_hypotheses else f"{n_all - len(dets)} rejected hypotheses left out"
-    print(f"sonardet detect: {args.input.name}: {len(xyz)} points, {n_tiles} tile(s), {len(dets)} detection(s) "
-          f"({n_acc} accepted; {kept}), {method.name}, {t_detect:.1f} s detection, {time.perf_counter() - t0:.1f} s "
-          f"total, coordinates in {cloud.crs or 'the input frame'} -> {args.out}")
+    kept = "all hypotheses" if args.all_hypotheses else f"{res.n_hypotheses - len(dets)} rejected hypotheses left out"
+    crs = res.survey.cloud.crs
+    frame = crs or "the input frame"
+    if res.survey.projection is not None:
+        frame = f"{crs} (projected from {res.survey.input_crs})"
+    print(f"sonardet detect: {args.input.name}: {len(res.survey.cloud)} points, {res.n_tiles} tile(s), {len(dets)} "
+          f"detection(s) ({n_acc} accepted; {kept}), {run.method}, {res.detect_seconds:.1f} s detection, "
+          f"{time.perf_counter() - t0:.1f} s total, coordinates in {frame} -> {args.out}")
     return 0
 
 
@@ -212,25 +243,35 @@ def _config(args) -> dict:
     return validate_config({"plugins": list(getattr(args, "plugins", None) or [])}, source="defaults")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the `sonardet` command."""
-    ap = argparse.ArgumentParser(prog="sonardet", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = ap.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("export-scene", help="write a scene's soundings as PLY, LAS/LAZ or XYZ text")
-    p.add_argument("scene", type=Path, help="a scene's soundings file, <id>.npz")
-    p.add_argument("out", type=Path, help="output file; the suffix picks the format (.ply .las .laz .xyz .csv)")
-    p.add_argument("--crs", default=None, help="CRS to record (e.g. EPSG:32633); scenes are local by default")
-    p.set_defaults(func=_export_scene)
-    p = sub.add_parser("build-objects", help="build the class meshes of a config")
-    p.add_argument("--config", type=Path, default=Path("config/config.yaml"))
-    p.add_argument("--out", type=Path, required=True, help="folder for {cls}.ply and {cls}.json")
-    p.set_defaults(func=_build_objects)
-    p = sub.add_parser("simulate", help="synthesize one scene")
-    p.add_argument("--config", type=Path, default=Path("config/config.yaml"))
-    p.add_argument("--objects", type=Path, required=True, help="folder with the objects' {cls}.json and {cls}.ply")
-    p.add_argument("--scene", default="s0000")
-    p.add_argument("--out", type=Path, required=True, help="folder for {scene}.npz and {scene}.json")
-    p.set_defaults(func=_simulate)
+def _add_quiet(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress bars and no informational log lines (bars are drawn only on a terminal anyway)")
+
+
+def _add_export_dataset_parser(sub) -> None:
+    """The `export-dataset` subcommand."""
+    p = sub.add_parser("export-dataset", help="write the synthetic dataset in a detector framework's layout",
+                       description="The simulated scenes and splits in OpenPCDet's custom-dataset layout "
+                                   "(points/*.npy, labels/*.txt, ImageSets/train|val|test.txt with dev as val), "
+                                   "so any OpenPCDet detector trains on them.")
+    p.add_argument("--format", choices=("openpcdet",), default="openpcdet", help="target layout (openpcdet)")
+    p.add_argument("--results", type=Path, default=Path("results"),
+                   help="workflow results folder holding scenes/ and splits/ (default: results)")
+    p.add_argument("--scenes", type=Path, default=None, help="scene folder (default: <results>/scenes)")
+    p.add_argument("--splits", type=Path, default=None,
+                   help="folder of train.txt, dev.txt, test.txt, train_<f>.txt (default: <results>/splits)")
+    p.add_argument("--out", type=Path, required=True, help="output folder (OpenPCDet's data/custom)")
+    p.add_argument("--feature", choices=("zero", "beam"), default="zero",
+                   help="4th point column: zero (OpenPCDet's intensity slot) or beam (distance from the swath "
+                        "centre, 0..1)")
+    p.add_argument("--config", type=Path, default=None, help="workflow config naming the classes (default: built-in)")
+    p.add_argument("--plugins", nargs="+", default=None, help="plugin modules registering more classes")
+    _add_quiet(p)
+    p.set_defaults(func=_export_dataset)
+
+
+def _add_detect_parser(sub) -> None:
+    """The `detect` subcommand."""
     p = sub.add_parser(
         "detect", help="detect reef structures in a survey point cloud (any registered method, tiled)",
         description="Detection with any registered method (training-free or learned) on a survey file. Coordinates are read in float64 and kept: the "
@@ -238,10 +279,29 @@ def build_parser() -> argparse.ArgumentParser:
                     "processed tile by tile. The JSON's scene id is the output file's stem (name the output "
                     "after the survey to keep its name).")
     p.add_argument("--input", type=Path, required=True,
-                   help="point cloud: .ply .las .laz .xyz .txt .pts .csv (text also .gz) or .npz")
+                   help="survey file: soundings .las .laz .xyz .txt .pts .csv (text also .gz) .ply .npz, or gridded "
+                        "bathymetry .tif/.tiff (GeoTIFF) or .bag (cells of at most 0.25 m)")
     p.add_argument("--out", type=Path, required=True, help="detections JSON (sonardet detection schema)")
-    p.add_argument("--csv", type=Path, default=None, help="also write the detections as CSV")
-    p.add_argument("--geojson", type=Path, default=None, help="also write the box footprints as GeoJSON")
+    p.add_argument("--csv", type=Path, default=None,
+                   help="also write the detections as CSV (header line, lon/lat columns when the CRS is known; "
+                        "metadata in <csv>.json)")
+    p.add_argument("--geojson", type=Path, default=None,
+                   help="also write the box footprints as RFC 7946 GeoJSON (WGS 84 longitude/latitude; needs the CRS)")
+    p.add_argument("--geojson-crs", type=Path, default=None, metavar="PATH",
+                   help="also write the box footprints as GeoJSON in the input's CRS (named in a 'crs' member, "
+                        "as GDAL/QGIS read it)")
+    p.add_argument("--las", type=Path, default=None,
+                   help="also write the input soundings as a classified .las/.laz (ASPRS class 2 seabed, 43 inside a "
+                        "detected box; extra bytes object_id, cls) for CloudCompare")
+    p.add_argument("--meshes", type=Path, default=None,
+                   help="also write the detected objects' posed meshes as one .ply (float64 vertices in the CRS, "
+                        "coloured by class)")
+    p.add_argument("--z-positive", choices=("up", "down"), default=None,
+                   help="direction of the file's vertical values: up (elevations) or down (depths, read as "
+                        "z = -depth); default: from the column name (depth is down), else up")
+    p.add_argument("--columns", default=None, metavar="NAMES",
+                   help="text files: comma-separated column names in file order, e.g. x,y,depth or lon,lat,z,ping "
+                        "(x/easting, y/northing, z/elevation, depth, lon/lat; other names become attributes)")
     p.add_argument("--results", type=Path, default=Path("results"),
                    help="folder with objects/{cls}.json|.ply and templates/{cls}.npz (default: results)")
     p.add_argument("--method", default="model_based_ours",
@@ -264,24 +324,62 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overlap-m", type=float, default=3.0,
                    help="tile overlap in metres, at least the largest object footprint (default: 3)")
     p.add_argument("--crs", default=None,
-                   help="CRS of the input coordinates when the file carries none (e.g. EPSG:32610)")
+                   help="CRS of the input coordinates when the file carries none (e.g. EPSG:32610; a geographic one "
+                        "such as EPSG:4326 is projected to the data's UTM zone, lon/lat columns are EPSG:4326)")
     p.add_argument("--keep-fliers", action="store_true",
                    help="keep isolated far soundings (at most 100 soundings more than 100 m from the rest); by "
                         "default they are left out and reported")
     p.add_argument("--classes", nargs="+", default=None, help="classes to detect (default: the config's classes)")
+    _add_quiet(p)
     p.set_defaults(func=_detect)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the `sonardet` command."""
+    ap = argparse.ArgumentParser(prog="sonardet", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("export-scene", help="write a scene's soundings as PLY, LAS/LAZ or XYZ text")
+    p.add_argument("scene", type=Path, help="a scene's soundings file, <id>.npz")
+    p.add_argument("out", type=Path, help="output file; the suffix picks the format (.ply .las .laz .xyz .csv)")
+    p.add_argument("--crs", default=None, help="CRS to record (e.g. EPSG:32633); scenes are local by default")
+    _add_quiet(p)
+    p.set_defaults(func=_export_scene)
+    p = sub.add_parser("build-objects", help="build the class meshes of a config")
+    p.add_argument("--config", type=Path, default=Path("config/config.yaml"))
+    p.add_argument("--out", type=Path, required=True, help="folder for {cls}.ply and {cls}.json")
+    _add_quiet(p)
+    p.set_defaults(func=_build_objects)
+    p = sub.add_parser("simulate", help="synthesize one scene")
+    p.add_argument("--config", type=Path, default=Path("config/config.yaml"))
+    p.add_argument("--objects", type=Path, required=True, help="folder with the objects' {cls}.json and {cls}.ply")
+    p.add_argument("--scene", nargs="+", default=["s0000"], help="scene id(s) (default s0000)")
+    p.add_argument("--out", type=Path, required=True, help="folder for {scene}.npz and {scene}.json")
+    _add_quiet(p)
+    p.set_defaults(func=_simulate)
+    _add_export_dataset_parser(sub)
+    _add_detect_parser(sub)
     return ap
 
 
 def main(argv=None) -> int:
     """Entry point of the `sonardet` command; returns the exit status."""
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
     args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("sonardet").setLevel(logging.WARNING if getattr(args, "quiet", False) else logging.NOTSET)
     try:
-        return args.func(args)
+        with warnings.catch_warnings(), logging_redirect_tqdm():  # log lines above a progress bar
+            warnings.showwarning = _log_warning
+            return args.func(args)
     except (ValueError, FileNotFoundError) as exc:
         print(f"sonardet {args.command}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def _log_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Show a library warning (e.g. a file whose z looks positive down) as one log line of the command."""
+    logging.getLogger("sonardet").warning("%s", message)
 
 
 if __name__ == "__main__":

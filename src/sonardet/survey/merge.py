@@ -1,16 +1,11 @@
 """The last step of a tiled survey: merge the tiles' detections (each object once, by the tile owning its
-box centre) and write them in the survey's own coordinates as JSON, CSV and GeoJSON."""
+box centre) and write them in the survey's coordinates (JSON, CSV, GeoJSON, classified LAS, meshes)."""
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
-from pathlib import Path
 
-from sonardet import SCHEMA_VERSION
-from sonardet.io.annotations import to_builtin, validate_detections
-from sonardet.io.atomic import atomic_write_text
-from sonardet.io.export import write_detections_csv, write_detections_geojson
+from sonardet.survey.outputs import OutputPaths, SurveyMeta, write_survey_outputs
 from sonardet.survey.tiling import Tile, merge_tile_detections
 
 __all__ = ["merge_survey_detections", "write_survey_detections"]
@@ -43,19 +38,17 @@ def merge_survey_detections(index: dict, tiles: list[Tile], per_tile: Mapping, d
 
 
 def write_survey_detections(dets: list, json_path, csv_path=None, geojson_path=None, *, survey: str,
-                            method: str, source: str, crs: str | None, classes=None) -> dict:
-    """Write a survey's merged detections (boxes in the survey's coordinates, m, rad) as the JSON of
-    ``sonardet detect`` (schema_version, scene, method, source, crs, detections; `scene` is the survey's
-    name: read it with ``read_detections(path, expected_scene=<survey>)``), and optionally as CSV and
-    GeoJSON (`sonardet.io.export`, CRS named). Atomic writes; returns the JSON document."""
-    doc = {"schema_version": SCHEMA_VERSION, "scene": survey, "method": method, "source": str(source), "crs": crs,
-           "detections": to_builtin(list(dets))}
-    doc = validate_detections(doc, json_path, classes, survey)
-    atomic_write_text(json_path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    frame = f"{crs} metres" if crs else "the survey file's coordinates (metres, CRS unknown)"
-    if csv_path is not None:
-        write_detections_csv(csv_path, doc["detections"],
-                             origin_note=f"coordinates: {frame}, as in {Path(source).name}; yaw_rad about +z")
-    if geojson_path is not None:
-        write_detections_geojson(geojson_path, doc["detections"], crs=crs)
-    return doc
+                            method: str, source: str, crs: str | None, classes=None, input_crs: str | None = None,
+                            geojson_crs_path=None, las_path=None, meshes_path=None, soundings=None, bounds=None,
+                            objects=None, colours=None) -> dict:
+    """Write a survey's merged detections (boxes in the survey's working CRS ``crs``, m, rad) as the JSON
+    of ``sonardet detect`` (schema_version, scene, method, source, crs, input_crs, detections; `scene` is
+    the survey's name: read it with ``read_detections(path, expected_scene=<survey>)``), and optionally as
+    CSV (+ sidecar), GeoJSON in WGS 84 (RFC 7946) and in ``crs``, the classified soundings (LAS/LAZ; needs
+    ``soundings``, a function returning their chunks, and ``bounds``) and the posed meshes (PLY; needs
+    ``objects``): `sonardet.survey.outputs.write_survey_outputs`. Atomic writes; returns the JSON document."""
+    paths = OutputPaths.of(json=json_path, csv=csv_path, geojson=geojson_path, geojson_crs=geojson_crs_path,
+                           las=las_path, meshes=meshes_path)
+    meta = SurveyMeta(survey, method, str(source), crs, input_crs if input_crs is not None else crs, classes)
+    return write_survey_outputs(dets, paths, meta, soundings=soundings, bounds=bounds, objects=objects,
+                                colours=colours)

@@ -11,13 +11,16 @@ from sonardet.io.points import DEFAULT_CHUNK_POINTS
 
 __all__ = ["SURVEY_DEFAULTS", "enabled_surveys", "object_footprint_m", "survey_defaults", "survey_settings"]
 
-#: Default settings of one entry of the config's `surveys` block: enabled, crs, method, tile_m (m),
-#: overlap_m (m), chunk_points, all_hypotheses, keep_fliers. `path` has no default. The config schema
+#: Default settings of one entry of the config's `surveys` block: enabled, crs, z_positive (up, down or
+#: null: from the file), columns (text files' column names, or null), method, tile_m (m), overlap_m (m),
+#: chunk_points, all_hypotheses, keep_fliers. `path` has no default. The config schema
 #: (`surveys.additionalProperties.properties.*.default` in sonardet/data/schema.yaml) states the same
 #: defaults; tests/test_survey_workflow.py checks that the two agree.
 SURVEY_DEFAULTS: dict = {
     "enabled": True,
     "crs": None,
+    "z_positive": None,
+    "columns": None,
     "method": "model_based_ours",
     "tile_m": 40.0,
     "overlap_m": 3.0,
@@ -29,7 +32,8 @@ SURVEY_DEFAULTS: dict = {
 
 def survey_defaults() -> dict:
     """Default settings of one entry of the config's `surveys` block (a copy of `SURVEY_DEFAULTS`):
-    enabled, crs, method, tile_m (m), overlap_m (m), chunk_points. `path` has no default."""
+    enabled, crs, z_positive, columns, method, tile_m (m), overlap_m (m), chunk_points, all_hypotheses.
+    `path` has no default."""
     return dict(SURVEY_DEFAULTS)
 
 

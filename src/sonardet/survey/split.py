@@ -63,11 +63,18 @@ from sonardet.io.points import (
     PointCloud,
     PointCloudError,
     format_module,
-    iter_chunks,
     read_points,
     write_points,
 )
-from sonardet.survey.extent import FLIER_GAP_M, FLIER_MAX_POINTS, FLIERS_LISTED, CellStats, Fliers, find_fliers
+from sonardet.survey.extent import (
+    FLIER_GAP_M,
+    FLIER_MAX_POINTS,
+    FLIERS_LISTED,
+    CellStats,
+    Fliers,
+    find_fliers,
+)
+from sonardet.survey.source import SurveySource, survey_chunks
 from sonardet.survey.tiling import Tile, plan_tiles, tile_points
 
 log = logging.getLogger(__name__)
@@ -101,6 +108,9 @@ class SurveyReader:
     streamed: bool
     chunk_points: int
     _pending: tuple[PointCloud | None, Iterator[PointCloud]] | None = field(default=None, repr=False)
+    #: How the file is read (vertical direction, columns, the CRS given); its coordinates' own CRS.
+    source: SurveySource | None = None
+    input_crs: str | None = None
 
     def chunks(self) -> Iterator[np.ndarray]:
         """Yield the survey's coordinates as float64 (n, 3) arrays (m, the file's frame) of at most
@@ -108,7 +118,8 @@ class SurveyReader:
         goes on from the chunk `open_survey` read; a later call reads the file again."""
         pending, self._pending = self._pending, None
         if pending is None:
-            pending = (None, iter_chunks(self.path, crs=self.crs, chunk_points=self.chunk_points))
+            source = self.source or SurveySource(self.path, self.crs)
+            pending = (None, survey_chunks(source, self.chunk_points)[1])
         first, rest = pending
         if first is not None:
             yield first.xyz
@@ -116,24 +127,27 @@ class SurveyReader:
             yield chunk.xyz
 
 
-def open_survey(path, crs: str | None = None, chunk_points: int = DEFAULT_CHUNK_POINTS) -> SurveyReader:
-    """Open a survey point cloud (any suffix `read_points` takes) for chunked reading
-    (`sonardet.io.points.iter_chunks`); the first chunk is read here, so the file's CRS and origin are
-    known and a file that cannot be read fails here.
+def open_survey(path, crs: str | None = None, chunk_points: int = DEFAULT_CHUNK_POINTS, *,
+                z_positive: str | None = None, columns=None) -> SurveyReader:
+    """Open a survey file (any suffix `read_points` takes) for chunked reading through
+    `sonardet.survey.source.survey_chunks` (vertical direction, columns, longitude/latitude projected to
+    UTM, the grid check of GeoTIFF/BAG); the first chunk is read here, so the CRS and origin are known
+    and a file that cannot be read fails here.
 
     crs: the CRS of the coordinates when the file carries none (text files never do); a file declaring
-    another CRS raises PointCloudError, as `read_points` does. chunk_points: points per chunk (>= 1).
-    Text and LAS/LAZ files are streamed; PLY and NPZ files are read whole here. Raises
-    FileNotFoundError, UnsupportedFormatError / PointCloudError (ValueError) like `read_points`.
+    another CRS raises PointCloudError, as `read_points` does. z_positive, columns: as for
+    ``sonardet detect`` (`SurveySource`). chunk_points: points per chunk (>= 1). Text, LAS/LAZ and raster
+    files are streamed; PLY and NPZ files are read whole here. The reader's ``crs`` is the working CRS
+    (UTM for geographic input), ``input_crs`` the file's own. Raises FileNotFoundError,
+    UnsupportedFormatError / PointCloudError (ValueError) like `read_points`.
     """
     p = Path(path)
     module = format_module(p)
-    chunks = iter_chunks(p, crs=crs, chunk_points=chunk_points)
-    first = next(chunks, None)  # every reader yields a chunk or raises ("no points"); None is a safety net
-    if first is None:
-        raise PointCloudError(f"{p}: no points")
+    source = SurveySource.of(p, crs=crs, z_positive=z_positive, columns=columns)
+    head, chunks = survey_chunks(source, chunk_points)
+    first = next(chunks)
     return SurveyReader(p, module.NAME, first.crs, first.origin, module.STREAMED, int(chunk_points),
-                        (first, chunks))
+                        (first, chunks), source, head.input_crs)
 
 
 # ------------------------------------------------------------------------------------------- split
@@ -225,7 +239,8 @@ def _plan(cells: CellStats, tile_m, overlap_m, min_overlap_m, keep_fliers: bool)
 
 def split_survey(path, tiles_dir, index_path, *, survey: str, tile_m: float = 40.0, overlap_m: float = 3.0,
                  crs: str | None = None, min_overlap_m: float | None = None,
-                 chunk_points: int = DEFAULT_CHUNK_POINTS, keep_fliers: bool = False) -> dict:
+                 chunk_points: int = DEFAULT_CHUNK_POINTS, keep_fliers: bool = False,
+                 z_positive: str | None = None, columns=None) -> dict:
     """Cut a survey file into tiles: ``tiles_dir/{tile}.npz`` per non-empty tile and the tile index
     JSON at `index_path`; returns the index document.
 
@@ -237,13 +252,16 @@ def split_survey(path, tiles_dir, index_path, *, survey: str, tile_m: float = 40
     of its padded rectangle (`tile_points`: borders included) in file order: ``xyz`` float64 (m, the
     survey's coordinates, as read), ``origin`` (the survey's local origin) and ``crs`` (when known).
     Planned tiles whose padded rectangle holds no point get no file (``file: null`` in the index).
+    The file is read through `open_survey` (``z_positive``, ``columns``, longitude/latitude projected
+    to UTM), so the tiles hold the coordinates ``sonardet detect`` works on.
 
     Two passes over the data (see the module doc for memory): the file is read once, chunk by chunk,
     into a float64 spool in `tiles_dir` (occupied cells on the way); the spool is then cut chunk by
     chunk, each chunk's tile subsets appended to per-tile spools, which become the NPZ files one at a
     time. Spools are removed at the end, also on error. Progress is logged at INFO level.
 
-    Index document: schema_version, survey, source, crs, origin [x, y, z] (m), n_points (in the file),
+    Index document: schema_version, survey, source, crs (the working CRS), input_crs, z_positive,
+    columns, origin [x, y, z] (m), n_points (in the file),
     n_points_used, fliers (`Fliers.to_json`, null without fliers), bounds [xmin, ymin, xmax, ymax] (m) and
     z_range [zmin, zmax] (m) of the points used, tile_m, overlap_m, min_overlap_m, nx, ny (of the full
     plan over the bounds), chunk_points, streamed, frame (a note), and tiles: one {id, ix, iy, core,
@@ -254,7 +272,7 @@ def split_survey(path, tiles_dir, index_path, *, survey: str, tile_m: float = 40
     t0 = time.perf_counter()
     plan_tiles((0.0, 0.0, 0.0, 0.0), tile_m, overlap_m, min_overlap_m)  # bad settings fail before reading
     tiles_dir, index_path = Path(tiles_dir), Path(index_path)
-    reader = open_survey(path, crs=crs, chunk_points=chunk_points)
+    reader = open_survey(path, crs=crs, chunk_points=chunk_points, z_positive=z_positive, columns=columns)
     tiles_dir.mkdir(parents=True, exist_ok=True)
     spool_dir = tiles_dir / ".spool"
     if spool_dir.exists():
@@ -276,6 +294,7 @@ def split_survey(path, tiles_dir, index_path, *, survey: str, tile_m: float = 40
         shutil.rmtree(spool_dir, ignore_errors=True)
     doc = {
         "schema_version": SCHEMA_VERSION, "survey": survey, "source": str(path), "crs": reader.crs,
+        "input_crs": reader.input_crs, "z_positive": z_positive, "columns": list(columns) if columns else None,
         "origin": [float(v) for v in origin], "n_points": int(n),
         "n_points_used": int(n if fliers is None or fliers.kept else n - fliers.n_points),
         "fliers": None if fliers is None else fliers.to_json(), "bounds": bounds, "z_range": z_range,

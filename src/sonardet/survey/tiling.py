@@ -37,7 +37,15 @@ from typing import Callable
 
 import numpy as np
 
-from sonardet.survey.extent import FLIER_GAP_M, FLIER_MAX_POINTS, FLIERS_LISTED, CellStats, Fliers, find_fliers
+from sonardet.progress import progress_bar
+from sonardet.survey.extent import (
+    FLIER_GAP_M,
+    FLIER_MAX_POINTS,
+    FLIERS_LISTED,
+    CellStats,
+    Fliers,
+    find_fliers,
+)
 
 log = logging.getLogger(__name__)
 
@@ -311,7 +319,7 @@ def _run_tile(p: np.ndarray, idx: np.ndarray, tile: Tile, detect_fn: Callable, r
 
 def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, overlap_m: float = 3.0,
                  progress: bool = True, min_overlap_m: float | None = None, dup_dist_m: float = 0.5,
-                 keep_fliers: bool = False, layout: SurveyLayout | None = None):
+                 keep_fliers: bool = False, layout: SurveyLayout | None = None, bar: bool = False):
     """Run `detect_fn` tile by tile over the points xyz (N,3) (float64 metres, any frame incl. UTM)
     and merge the results.
 
@@ -323,7 +331,8 @@ def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, ove
     bytes per point); a tile's column strip is found by bisection (its indices and y values, 16 bytes
     per point of the strip, live while the tile is cut out) and the detector gets a copy of the tile's
     points only, never of the whole cloud. With `progress`, every tile is logged at INFO level ("tile
-    3/9 t002_000: 51234 points, 2 detections, 4.1 s").
+    3/9 t002_000: 51234 points, 2 detections, 4.1 s"); with `bar`, a
+    progress bar with the time left is drawn on a terminal (`sonardet.progress`).
 
     Returns (detections, per_tile_stats): the merged detections (`merge_tile_detections`, sorted by
     descending score) and one dict per planned tile {tile, core, padded, n_points, n_detections, n_kept,
@@ -339,7 +348,7 @@ def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, ove
     tiles = layout.tiles
     order, xs = _column_index(p, layout.keep)
     per_tile, rows = {}, []
-    for k, tile in enumerate(tiles, 1):
+    for k, tile in enumerate(progress_bar(tiles, desc="detect", unit="tile", enabled=bar), 1):
         x0, y0, x1, y1 = tile.padded
         a, b = np.searchsorted(xs, x0, "left"), np.searchsorted(xs, x1, "right")
         col = order[a:b]
@@ -360,10 +369,12 @@ def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, ove
 
 
 def detect_survey(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, overlap_m: float = 3.0,
-                  min_overlap_m: float | None = None, keep_fliers: bool = False, source: str = "survey"):
+                  min_overlap_m: float | None = None, keep_fliers: bool = False, source: str = "survey",
+                  bar: bool = False):
     """Detection on a whole survey held in memory (what ``sonardet detect`` runs): `survey_layout`
     (fliers dropped unless `keep_fliers`, logged naming `source`), then `detect_fn` on the points used in
-    one call when one tile covers them, else `detect_tiled`. xyz: (N, 3) float64 m, any frame.
+    one call when one tile covers them, else `detect_tiled` (with `bar`, a progress bar on a terminal).
+    xyz: (N, 3) float64 m, any frame.
 
     Returns (detections, info): detections in xyz's frame; info {n_points (used), n_tiles (tiles that
     held points), rows (`detect_tiled`'s per-tile rows, None for one tile), fliers (the
@@ -381,6 +392,6 @@ def detect_survey(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, ov
     b = layout.bounds
     log.info("%s: %d points over %.1f x %.1f m in %d tiles of <= %g m (overlap %g m)", source, info["n_points"],
              b[2] - b[0], b[3] - b[1], len(layout.tiles), tile_m, overlap_m)
-    dets, rows = detect_tiled(p, detect_fn, tile_m, overlap_m, True, min_overlap_m, layout=layout)
+    dets, rows = detect_tiled(p, detect_fn, tile_m, overlap_m, True, min_overlap_m, layout=layout, bar=bar)
     info.update(rows=rows, n_tiles=sum(not r["skipped"] for r in rows))
     return dets, info

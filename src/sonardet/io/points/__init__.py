@@ -11,6 +11,8 @@ suffix                                 format                                   
 ``.las .laz``                          LAS 1.4 / LAZ through laspy (``las.py``)               streamed
 ``.ply``                               PLY, ascii or binary (``ply.py``)                      whole file
 ``.npz``                               the scene format of DESIGN.md (``npz.py``)             whole file
+``.tif .tiff .bag``                    gridded bathymetry, GeoTIFF / BAG (``raster.py``),     rows
+                                       read only: grid nodes become soundings
 =====================================  =====================================================  ==========
 
 A format module exports ``NAME``, ``SUFFIXES``, ``STREAMED``, ``READ_OPTIONS`` and ``WRITE_OPTIONS``
@@ -19,6 +21,11 @@ A format module exports ``NAME``, ``SUFFIXES``, ``STREAMED``, ``READ_OPTIONS`` a
 ``iter_chunks(path, *, crs=None, chunk_points=...)``. Chunks are :class:`PointCloud` objects holding x,
 y, z only (no attributes), with the file's CRS and origin; their rows, concatenated, are the ``xyz``
 of :func:`read_points`, value for value.
+
+Vertical direction: z is up. ``z_positive="down"`` (``--z-positive down``) reads a text or GeoTIFF file's
+vertical values as depths (z = -value); a ``depth`` column is positive down by its name. The checks
+of ``core.apply_z_positive`` refuse depths that are elevations already and warn about a headerless file
+that looks positive down.
 
 Coordinates are always float64 metres in the file's own frame (the CRS's, e.g. EPSG:32610 easting,
 northing, elevation). Move them to a local frame (``PointCloud.local``,
@@ -37,10 +44,11 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
 
-from sonardet.io.points import las, npz, ply, text
+from sonardet.io.points import las, npz, ply, raster, text
 from sonardet.io.points.core import (
     DEFAULT_CHUNK_POINTS,
     RESERVED_NAMES,
+    Z_POSITIVE,
     PointCloud,
     PointCloudError,
     UnsupportedFormatError,
@@ -60,9 +68,11 @@ __all__ = [
     "PointCloud",
     "PointCloudError",
     "UnsupportedFormatError",
+    "Z_POSITIVE",
     "check_finite",
     "check_plausible",
     "format_module",
+    "grid_cell_m",
     "iter_chunks",
     "iter_slices",
     "merge_crs",
@@ -73,7 +83,8 @@ __all__ = [
 ]
 
 #: The format table: file suffix (lower case) -> the module that reads and writes that format.
-FORMAT_TABLE: dict[str, ModuleType] = {suffix: module for module in (text, las, ply, npz) for suffix in module.SUFFIXES}
+FORMAT_TABLE: dict[str, ModuleType] = {suffix: module for module in (text, las, ply, npz, raster)
+                                     for suffix in module.SUFFIXES}
 #: Plain-text suffixes; each may also end in ``.gz``.
 TEXT_SUFFIXES: tuple[str, ...] = text.BASE_SUFFIXES
 #: Every suffix :func:`read_points` and :func:`write_points` accept.
@@ -96,7 +107,7 @@ def format_module(path: str | os.PathLike) -> ModuleType:
 
 
 def point_format(path: str | os.PathLike) -> str:
-    """Format key of ``path`` from its suffix: 'text', 'las', 'ply' or 'npz'.
+    """Format key of ``path`` from its suffix: 'text', 'las', 'ply', 'npz' or 'raster'.
 
     Raises :class:`UnsupportedFormatError` listing the supported suffixes.
     """
@@ -114,14 +125,26 @@ def _existing_file(path: str | os.PathLike) -> tuple[Path, ModuleType]:
     return p, module
 
 
+def _options(p: Path, module: ModuleType, columns, z_positive) -> dict:
+    """The reading options of ``read_points``/``iter_chunks`` that ``module`` takes; one it does not take
+    but that was given raises PointCloudError."""
+    given = {"columns": columns, "z_positive": z_positive}
+    unused = [k for k, v in given.items() if v is not None and k not in module.READ_OPTIONS]
+    if unused:
+        raise PointCloudError(f"{p}: {', '.join(unused)} (--{unused[0].replace('_', '-')}) do(es) not apply to "
+                              f"{module.NAME} files")
+    return {k: v for k, v in given.items() if k in module.READ_OPTIONS}
+
+
 def read_points(
     path: str | os.PathLike,
     *,
     columns: Sequence[str] | None = None,
     crs: str | None = None,
-    depth_to_z: bool = False,
+    z_positive: str | None = None,
 ) -> PointCloud:
-    """Read a point cloud; coordinates float64 metres in the file's frame.
+    """Read a point cloud; coordinates float64 in the file's frame (metres; degrees for longitude/latitude
+    text columns), z up.
 
     Args:
         path: file with one of :data:`SUPPORTED_SUFFIXES` (case-insensitive).
@@ -130,9 +153,9 @@ def read_points(
             ``sonardet.io.points.text``.
         crs: CRS of the coordinates (``"EPSG:32610"``) when the file carries none (text files
             never do). If the file declares a different CRS, a ``PointCloudError`` is raised.
-        depth_to_z: text files only: allow a ``depth`` column (positive down) as the vertical
-            coordinate, read as ``z = -depth``, when no elevation column exists. Without it such a
-            file is refused rather than guessed.
+        z_positive: text and GeoTIFF files: ``"up"`` (elevations) or ``"down"`` (depths, read as
+            z = -value); None: from the column name (``depth`` is down), else up, with the checks of
+            ``core.apply_z_positive``.
 
     Returns:
         :class:`PointCloud` with ``source=str(path)``.
@@ -140,15 +163,18 @@ def read_points(
     Raises:
         FileNotFoundError; :class:`UnsupportedFormatError`; :class:`PointCloudError` for an empty
         file ("no points"), wrong column counts (with the 1-based line), non-numeric values,
-        NaN/Inf coordinates (with the row), bad fields;
+        NaN/Inf coordinates (with the row), bad fields, depths that are elevations;
         :class:`sonardet.io.origin.GlobalCoordinatesError` (also a ``ValueError``) for a PLY or NPZ
         file that stores UTM-magnitude coordinates in float32.
     """
     p, module = _existing_file(path)
-    if not module.READ_OPTIONS and (columns is not None or depth_to_z):
-        raise PointCloudError(f"{p}: columns= and depth_to_z= apply to text files only, not {module.NAME}")
-    given = {"columns": columns, "depth_to_z": depth_to_z}
-    return module.read(p, crs=crs, **{k: v for k, v in given.items() if k in module.READ_OPTIONS})
+    return module.read(p, crs=crs, **_options(p, module, columns, z_positive))
+
+
+def grid_cell_m(path: str | os.PathLike, crs: str | None = None) -> float | None:
+    """Node spacing (m) of a gridded file (GeoTIFF, BAG: ``raster.cell_size_m``); None for point formats."""
+    p, module = _existing_file(path)
+    return module.cell_size_m(p, crs) if module is raster else None
 
 
 def write_points(
@@ -188,11 +214,13 @@ def write_points(
 
 
 def iter_chunks(
-    path: str | os.PathLike, *, crs: str | None = None, chunk_points: int = DEFAULT_CHUNK_POINTS
+    path: str | os.PathLike, *, crs: str | None = None, chunk_points: int = DEFAULT_CHUNK_POINTS,
+    columns: Sequence[str] | None = None, z_positive: str | None = None,
 ) -> Iterator[PointCloud]:
     """Read a point cloud chunk by chunk: :class:`PointCloud` objects of at most ``chunk_points`` points
     holding x, y, z only (float64 metres, the file's frame; no attributes) with the file's CRS and
-    origin, in file order; concatenated, their coordinates are those of :func:`read_points`.
+    origin, in file order; concatenated, their coordinates are those of :func:`read_points` (``columns``
+    and ``z_positive`` as there).
 
     Text and LAS/LAZ files are streamed (memory: one chunk); PLY and NPZ files are read whole and sliced
     (the format module's ``STREAMED``). ``crs`` as in :func:`read_points`. The path, suffix and
@@ -205,4 +233,4 @@ def iter_chunks(
     p, module = _existing_file(path)
     if int(chunk_points) < 1:
         raise ValueError(f"chunk_points must be >= 1, got {chunk_points!r}")
-    return module.iter_chunks(p, crs=crs, chunk_points=int(chunk_points))
+    return module.iter_chunks(p, crs=crs, chunk_points=int(chunk_points), **_options(p, module, columns, z_positive))

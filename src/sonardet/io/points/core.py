@@ -22,12 +22,16 @@ from sonardet.io.origin import LOCAL_LIMIT_M, GlobalCoordinatesError, LocalFrame
 
 __all__ = [
     "DEFAULT_CHUNK_POINTS",
+    "MAX_DEPTH_M",
     "RESERVED_NAMES",
+    "Z_POSITIVE",
     "PointCloud",
     "PointCloudError",
     "UnsupportedFormatError",
+    "apply_z_positive",
     "check_finite",
     "check_plausible",
+    "check_z_positive",
     "iter_slices",
     "merge_crs",
     "normalize_crs",
@@ -44,6 +48,13 @@ PLAUSIBLE_XY_M = 1e8
 PLAUSIBLE_Z_M = 1e5
 #: Points per chunk of the chunked readers by default; 1e6 points of x y z text take about 48 MB.
 DEFAULT_CHUNK_POINTS = 1_000_000
+
+
+#: Accepted values of the ``z_positive`` option (``--z-positive``): which way the file's vertical values
+#: point. ``up``: elevations (z); ``down``: depths, read as z = -depth.
+Z_POSITIVE = ("up", "down")
+#: Deepest sounding on Earth (m, rounded up): positive vertical values beyond it cannot be depths.
+MAX_DEPTH_M = 11_000.0
 
 
 class PointCloudError(ValueError):
@@ -267,3 +278,49 @@ def iter_slices(cloud: PointCloud, chunk_points: int) -> Iterator[PointCloud]:
     """
     for a in range(0, len(cloud), chunk_points):
         yield PointCloud(cloud.xyz[a:a + chunk_points], crs=cloud.crs, source=cloud.source, origin=cloud.origin)
+
+
+def check_z_positive(z_positive: str | None, where: str) -> None:
+    """Raise :class:`PointCloudError` unless ``z_positive`` is None, ``"up"`` or ``"down"``."""
+    if z_positive is not None and z_positive not in Z_POSITIVE:
+        raise PointCloudError(f"{where}: z_positive (--z-positive) must be 'up' or 'down', got {z_positive!r}")
+
+
+def apply_z_positive(values: np.ndarray, down: bool, *, ambiguous: bool, explicit: bool, where: str) -> np.ndarray:
+    """Elevations (m, z up) from a file's vertical values ``values`` (float64, modified in place and
+    returned): negated when ``down`` (depths, positive down).
+
+    The rule for values that contradict their declared direction, applied to the values as read:
+
+    * read as depths (``down``: a ``depth`` column or ``--z-positive down``) but more than half of them
+      negative: they are elevations already (the seabed below the vertical reference has negative
+      elevation and positive depth), and negating them would turn objects into pits. Raises
+      :class:`PointCloudError` naming the file and ``--z-positive up``. (Drying heights above chart
+      datum are negative depths too, but a survey of reef elements lies mostly below its datum.)
+    * direction unknown (``ambiguous``: a headerless file or a plain ``z`` column, no ``--z-positive``)
+      and more than half of the values positive, none beyond the deepest ocean (11 000 m): they look
+      like depths; a ``UserWarning`` names the file and ``--z-positive down`` (or ``up`` to silence it,
+      e.g. for a lake bed above sea level).
+    """
+    n = len(values)
+    if n:
+        positive = float(np.count_nonzero(values > 0)) / n
+        negative = float(np.count_nonzero(values < 0)) / n
+        median = float(np.median(values))
+        if down and negative > 0.5:
+            how = "--z-positive down" if explicit else "its column name (depth)"
+            raise PointCloudError(
+                f"{where}: the vertical values are read as depths (positive down, from {how}) but "
+                f"{100 * negative:.0f}% of them are negative (median {median:.3f} m): they are elevations "
+                "(positive up) already; pass --z-positive up (config: z_positive: up) to read them as z")
+        if ambiguous and not explicit and positive > 0.5 and float(values.max()) <= MAX_DEPTH_M:
+            import warnings
+
+            warnings.warn(
+                f"{where}: {100 * positive:.0f}% of the vertical values are positive (median {median:.3f} m) and "
+                "nothing in the file says which way z points; if they are depths (positive down), pass "
+                "--z-positive down (config: z_positive: down), else objects become pits; pass --z-positive up "
+                "if they are elevations", UserWarning, stacklevel=2)
+    if down:
+        np.negative(values, out=values)
+    return values

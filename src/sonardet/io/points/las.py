@@ -6,24 +6,20 @@ become attributes; standard point-record fields (``intensity``, ``classification
 ``number_of_returns`` also not all 1, the writer's default). A file whose header counts no points
 is refused ("no points").
 
-CRS on read, first match wins:
-  1. with ``pyproj`` installed: ``header.parse_crs()``, returned as ``"AUTH:CODE"`` (e.g.
-     ``"EPSG:32610"``) or WKT when it has no authority code;
-  2. without pyproj: the outermost node's ``AUTHORITY["EPSG", n]`` / ``ID["EPSG", n]`` of an OGC WKT VLR
-     (else the WKT string itself), then ``ProjectedCSTypeGeoKey`` / ``GeographicTypeGeoKey`` of a
-     GeoTIFF key directory VLR;
-  3. the ``sonardet`` VLR written when no standard CRS record could be made (see writing).
+CRS on read: ``header.parse_crs()`` (pyproj: the OGC WKT VLR, else the GeoTIFF keys), as a
+``sonardet.io.crs.crs_string`` (``"EPSG:32610"``, ``"EPSG:32610+5703"`` for a compound CRS, else WKT); files
+of older sonardet versions may hold the CRS only in a ``sonardet`` VLR (user id ``sonardet``, record 1,
+UTF-8 text), which is read when no standard record exists.
 
 Writing: LAS 1.4, point format 6, scales ``las_scale_m`` (default 0.001 m) and offsets at the data
 minimum floored to a whole metre, so the quantisation error is at most ``las_scale_m / 2``. Attributes
 named like a format-6 standard field go there if their values fit it losslessly (else an error
 asks for a rename); all others become extra-bytes fields of their own dtype (bool as uint8).
-``return_number`` and ``number_of_returns`` default to 1. CRS: with pyproj any CRS is written as a
-WKT VLR (``header.add_crs``); without pyproj, WGS 84 / UTM zones (EPSG:326zz, 327zz) get a WKT1
-VLR generated here and WKT strings are written as given; other CRS strings are kept only in a
-``sonardet`` VLR (user id ``sonardet``, record 1, UTF-8 text) with a warning, which this reader
-understands and other tools ignore. ``PointCloud.origin`` goes into ``sonardet`` record 2 (three
-little-endian float64). The creation date is ``SOURCE_DATE_EPOCH`` when set, else today.
+``return_number`` and ``number_of_returns`` default to 1. CRS: a WKT VLR through pyproj
+(``header.add_crs``; compound and vertical CRSs included); a CRS pyproj does not understand is refused.
+``PointCloud.origin`` goes into ``sonardet`` record 2 (three little-endian float64). The creation date is
+``SOURCE_DATE_EPOCH`` when set, else today. :func:`open_writer` writes a file chunk by chunk (LAZ too),
+for point sets larger than memory.
 
 Chunked reading (:func:`iter_chunks`) streams the points through laspy's chunk iterator (LAZ too) and
 yields x, y, z only, scaled as :func:`read` scales them, with the file's CRS and origin.
@@ -32,26 +28,24 @@ yields x, y, z only, scaled as :func:`read` scales them, with the file's CRS and
 from __future__ import annotations
 
 import os
-import re
 import struct
-import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from datetime import date, datetime, timezone
 from pathlib import Path
 
 import laspy
 import numpy as np
-from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
 
 from sonardet import __version__
 from sonardet.io.atomic import atomic_path
+from sonardet.io.crs import CrsError, crs_string, parse_crs
 from sonardet.io.points.core import (
     DEFAULT_CHUNK_POINTS,
     PointCloud,
     PointCloudError,
     check_plausible,
     merge_crs,
-    normalize_crs,
 )
 
 #: What laspy and its LAZ backends raise on a truncated or damaged file (lazrs raises a RuntimeError
@@ -59,7 +53,7 @@ from sonardet.io.points.core import (
 _LAS_ERRORS = (laspy.errors.LaspyException, OSError, ValueError, EOFError, struct.error, RuntimeError)
 
 __all__ = [
-    "NAME", "SUFFIXES", "STREAMED", "READ_OPTIONS", "WRITE_OPTIONS", "read", "write", "iter_chunks", "utm_wkt",
+    "NAME", "SUFFIXES", "STREAMED", "READ_OPTIONS", "WRITE_OPTIONS", "read", "write", "iter_chunks", "open_writer",
 ]
 
 #: Format key (``sonardet.io.points.point_format``).
@@ -75,98 +69,18 @@ WRITE_OPTIONS: tuple[str, ...] = ("las_scale_m",)
 SONARDET_VLR_USER = "sonardet"
 _VLR_CRS = 1
 _VLR_ORIGIN = 2
-_EPSG_NODE = re.compile(r'(?:AUTHORITY|ID)\s*\[\s*"EPSG"\s*,\s*"?(\d+)"?\s*[\],]', re.IGNORECASE)
-_WKT_HEADS = ("PROJCS[", "GEOGCS[", "COMPD_CS[", "GEOCCS[", "PROJCRS[", "GEOGCRS[", "COMPOUNDCRS[", "BOUNDCRS[")
-_PROJECTED_KEY = 3072
-_GEOGRAPHIC_KEY = 2048
 
 
 # ---------------------------------------------------------------------------- CRS helpers
-def utm_wkt(crs: str) -> str | None:
-    """OGC WKT1 of a WGS 84 / UTM CRS (``"EPSG:326zz"`` north, ``"EPSG:327zz"`` south), else None.
-
-    Generated from the zone (central meridian ``6 * zone - 183`` degrees, scale 0.9996, false
-    easting 500 000 m, false northing 0 or 10 000 000 m), in the form GDAL exports for these codes.
-    """
-    m = re.fullmatch(r"EPSG:(32[67])(\d\d)", normalize_crs(crs))
-    if not m or not 1 <= int(m.group(2)) <= 60:
-        return None
-    zone = int(m.group(2))
-    south = m.group(1) == "327"
-    code = int(m.group(1) + m.group(2))
-    return (
-        f'PROJCS["WGS 84 / UTM zone {zone}{"S" if south else "N"}",GEOGCS["WGS 84",DATUM["WGS_1984",'
-        'SPHEROID["WGS 84",6378137,298.257223563,AUTHORITY["EPSG","7030"]],AUTHORITY["EPSG","6326"]],'
-        'PRIMEM["Greenwich",0,AUTHORITY["EPSG","8901"]],UNIT["degree",0.0174532925199433,'
-        'AUTHORITY["EPSG","9122"]],AUTHORITY["EPSG","4326"]],PROJECTION["Transverse_Mercator"],'
-        f'PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",{6 * zone - 183}],'
-        'PARAMETER["scale_factor",0.9996],PARAMETER["false_easting",500000],'
-        f'PARAMETER["false_northing",{10000000 if south else 0}],UNIT["metre",1,AUTHORITY["EPSG","9001"]],'
-        f'AXIS["Easting",EAST],AXIS["Northing",NORTH],AUTHORITY["EPSG","{code}"]]'
-    )
-
-
-def _crs_from_wkt(wkt: str) -> str | None:
-    """``"EPSG:n"`` from the outermost node's own authority of a WKT string (WKT1 ``AUTHORITY`` or
-    WKT2 ``ID``, wherever it stands among that node's children), else the stripped WKT, else None."""
-    text = wkt.strip().rstrip("\0").strip()
-    if not text:
-        return None
-    depth = 0
-    in_quote = False
-    for i, ch in enumerate(text):
-        if ch == '"':
-            in_quote = not in_quote
-        elif in_quote:
-            continue
-        elif ch in "[(":
-            depth += 1
-        elif ch in "])":
-            depth -= 1
-        elif depth == 1 and ch in "AIai" and (i == 0 or text[i - 1] in ", "):
-            m = _EPSG_NODE.match(text, i)
-            if m:
-                return f"EPSG:{int(m.group(1))}"
-    return text
-
-
-def _crs_from_geokeys(vlr: GeoKeyDirectoryVlr) -> str | None:
-    """``"EPSG:n"`` from a GeoTIFF key directory (projected key preferred), else None."""
-    found: dict[int, int] = {}
-    for key in vlr.geo_keys:
-        if key.id in (_PROJECTED_KEY, _GEOGRAPHIC_KEY) and key.tiff_tag_location == 0:
-            if 1024 <= key.value_offset <= 32766:
-                found[key.id] = int(key.value_offset)
-    code = found.get(_PROJECTED_KEY, found.get(_GEOGRAPHIC_KEY))
-    return f"EPSG:{code}" if code is not None else None
-
-
-def _read_crs(las: laspy.LasData) -> str | None:
-    """CRS string of a LAS file (see the module docstring for the order), or None."""
+def _read_crs(las) -> str | None:
+    """CRS string of a LAS file (see the module docstring), or None."""
     try:
-        import pyproj  # noqa: F401
-    except ImportError:
-        pass
-    else:
-        try:
-            parsed = las.header.parse_crs()
-        except Exception:  # malformed records: fall back to the manual parse below
-            parsed = None
-        if parsed is not None:
-            auth = parsed.to_authority()
-            return f"{auth[0]}:{auth[1]}" if auth else parsed.to_wkt()
-    vlrs = list(las.header.vlrs) + list(las.evlrs or [])
-    for vlr in vlrs:
-        if isinstance(vlr, WktCoordinateSystemVlr):
-            crs = _crs_from_wkt(vlr.string)
-            if crs:
-                return crs
-    for vlr in vlrs:
-        if isinstance(vlr, GeoKeyDirectoryVlr):
-            crs = _crs_from_geokeys(vlr)
-            if crs:
-                return crs
-    for vlr in vlrs:
+        parsed = las.header.parse_crs()
+    except Exception:  # malformed CRS records (laspy raises several types): try the sonardet record
+        parsed = None
+    if parsed is not None:
+        return crs_string(parsed)
+    for vlr in list(las.header.vlrs) + list(getattr(las, "evlrs", None) or []):
         if vlr.user_id == SONARDET_VLR_USER and vlr.record_id == _VLR_CRS:
             text = bytes(vlr.record_data).decode("utf-8", errors="replace").rstrip("\0").strip()
             if text:
@@ -185,30 +99,18 @@ def _read_origin(las: laspy.LasData, where: str) -> np.ndarray | None:
 
 
 def _add_crs(header: laspy.LasHeader, crs: str, where: str) -> None:
-    """Attach ``crs`` to ``header`` (see the module docstring)."""
+    """Attach ``crs`` to ``header`` as an OGC WKT VLR (LAS 1.4): pyproj's WKT1 (GDAL flavour, the OGC
+    01-009 form LAS 1.4 names and LAStools, PDAL and CloudCompare read), WKT2 for a CRS WKT1 cannot
+    express; a CRS pyproj does not understand raises PointCloudError."""
+    from laspy.vlrs.known import WktCoordinateSystemVlr
+
     try:
-        import pyproj
-    except ImportError:
-        pyproj = None
-    if pyproj is not None:
-        try:
-            header.add_crs(pyproj.CRS.from_user_input(crs))
-            return
-        except pyproj.exceptions.CRSError as exc:
-            raise PointCloudError(f"{where}: pyproj does not understand crs={crs!r} ({exc}); fix the CRS string") from exc
-    wkt = utm_wkt(crs)
-    if wkt is None and crs.lstrip().upper().startswith(_WKT_HEADS):
-        wkt = crs
-    if wkt is not None:
-        header.vlrs.append(WktCoordinateSystemVlr(wkt))
-        header.global_encoding.wkt = True
-        return
-    warnings.warn(
-        f"{where}: CRS {crs!r} stored only in a 'sonardet' VLR (other tools will not see it); "
-        "install pyproj to write a standard WKT record",
-        stacklevel=4,
-    )
-    header.vlrs.append(laspy.VLR(SONARDET_VLR_USER, _VLR_CRS, "crs", crs.encode("utf-8")))
+        obj = parse_crs(crs, where)
+    except CrsError as exc:
+        raise PointCloudError(str(exc)) from None
+    wkt = obj.to_wkt("WKT1_GDAL") or obj.to_wkt()
+    header.vlrs.append(WktCoordinateSystemVlr(wkt))
+    header.global_encoding.wkt = True
 
 
 def _creation_date() -> date:
@@ -258,20 +160,15 @@ def read(path: str | Path, *, crs: str | None = None) -> PointCloud:
     )
 
 
-def write(path: str | Path, cloud: PointCloud, *, las_scale_m: float = 0.001) -> None:
-    """Write ``cloud`` as LAS 1.4 point format 6 (``.laz``: compressed), atomically.
-
-    Coordinates (metres, the cloud's frame) are quantised to ``las_scale_m`` metres (default 1 mm),
-    offsets at the data minimum floored to a whole metre. See the module docstring for attributes and CRS.
-    """
-    p = Path(path)
-    where = str(p)
-    scale_m = las_scale_m
+def _new_header(where: str, lo: np.ndarray, hi: np.ndarray, scale_m: float, crs: str | None,
+                origin: np.ndarray | None) -> laspy.LasHeader:
+    """A LAS 1.4 format-6 header for points within [lo, hi] (m): scales ``scale_m``, offsets at ``lo``
+    floored to a whole metre, the CRS VLR and the sonardet origin VLR; raises for a bad scale or a span
+    int32 coordinates cannot hold."""
     if not (np.isfinite(scale_m) and scale_m > 0):
         raise PointCloudError(f"{where}: las_scale_m must be a positive number of metres, got {scale_m!r}")
-    xyz = cloud.xyz
-    offsets = np.floor(xyz.min(axis=0))
-    span = float((xyz.max(axis=0) - offsets).max())
+    offsets = np.floor(np.asarray(lo, dtype=np.float64))
+    span = float((np.asarray(hi, dtype=np.float64) - offsets).max())
     if span / scale_m >= 2**31 - 1:
         raise PointCloudError(
             f"{where}: the cloud spans {span:.1f} m, too much for a LAS scale of {scale_m} m (int32 "
@@ -283,41 +180,91 @@ def write(path: str | Path, cloud: PointCloud, *, las_scale_m: float = 0.001) ->
     header.generating_software = f"sonardet {__version__}"
     header.system_identifier = "sonardet"
     header.creation_date = _creation_date()
+    if crs is not None:
+        _add_crs(header, crs, where)
+    if origin is not None:
+        header.vlrs.append(
+            laspy.VLR(SONARDET_VLR_USER, _VLR_ORIGIN, "local origin x y z (m)", struct.pack("<3d", *origin))
+        )
+    return header
 
+
+def _split_attributes(header: laspy.LasHeader, attributes: Mapping[str, np.ndarray], where: str):
+    """(standard fields, extra-bytes fields) of ``attributes``: names of format-6 fields whose values fit
+    go to the first, the others to the second (bool as uint8); clashes and long names raise."""
     standard = {d.name: d for d in header.point_format.dimensions if d.name not in ("X", "Y", "Z")}
     to_standard: dict[str, np.ndarray] = {}
     to_extra: dict[str, np.ndarray] = {}
-    for name, values in cloud.attributes.items():
+    for name, values in attributes.items():
         if name in standard:
             to_standard[name] = _fit_standard(values, standard[name], where)
-        else:
-            if len(name.encode("utf-8")) > 32:
-                raise PointCloudError(f"{where}: attribute name {name!r} is longer than LAS's 32 bytes; rename it")
-            if name.lower() in (s.lower() for s in standard) or name in ("X", "Y", "Z"):
-                raise PointCloudError(f"{where}: attribute {name!r} clashes with a LAS field name; rename it")
-            arr = values.astype(np.uint8) if values.dtype.kind == "b" else values
-            to_extra[name] = arr
+            continue
+        if len(name.encode("utf-8")) > 32:
+            raise PointCloudError(f"{where}: attribute name {name!r} is longer than LAS's 32 bytes; rename it")
+        if name.lower() in (s.lower() for s in standard) or name in ("X", "Y", "Z"):
+            raise PointCloudError(f"{where}: attribute {name!r} clashes with a LAS field name; rename it")
+        to_extra[name] = values.astype(np.uint8) if values.dtype.kind == "b" else values
+    return to_standard, to_extra
+
+
+def _fill(record, xyz: np.ndarray, fields: Mapping[str, np.ndarray]) -> None:
+    """Set the coordinates (m) and fields of a LasData or ScaleAwarePointRecord; returns default to 1."""
+    record.x, record.y, record.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    for name in ("return_number", "number_of_returns"):
+        if name not in fields:
+            record[name] = np.ones(len(xyz), dtype=np.uint8)
+    for name, values in fields.items():
+        record[name] = values
+
+
+def write(path: str | Path, cloud: PointCloud, *, las_scale_m: float = 0.001) -> None:
+    """Write ``cloud`` as LAS 1.4 point format 6 (``.laz``: compressed), atomically.
+
+    Coordinates (metres, the cloud's frame) are quantised to ``las_scale_m`` metres (default 1 mm),
+    offsets at the data minimum floored to a whole metre. See the module docstring for attributes and CRS.
+    """
+    p = Path(path)
+    where = str(p)
+    xyz = cloud.xyz
+    header = _new_header(where, xyz.min(axis=0), xyz.max(axis=0), las_scale_m, cloud.crs, cloud.origin)
+    to_standard, to_extra = _split_attributes(header, cloud.attributes, where)
     if to_extra:
         header.add_extra_dims([laspy.ExtraBytesParams(name=k, type=v.dtype) for k, v in to_extra.items()])
-    if cloud.crs is not None:
-        _add_crs(header, cloud.crs, where)
-    if cloud.origin is not None:
-        header.vlrs.append(
-            laspy.VLR(SONARDET_VLR_USER, _VLR_ORIGIN, "local origin x y z (m)", struct.pack("<3d", *cloud.origin))
-        )
-
     las = laspy.LasData(header)
-    las.x = xyz[:, 0]
-    las.y = xyz[:, 1]
-    las.z = xyz[:, 2]
-    for name in ("return_number", "number_of_returns"):
-        if name not in to_standard:
-            las[name] = np.ones(len(cloud), dtype=np.uint8)
-    for name, values in {**to_standard, **to_extra}.items():
-        las[name] = values
+    _fill(las, xyz, {**to_standard, **to_extra})
     compress = p.name.lower().endswith(".laz")
     with atomic_path(p) as tmp, open(tmp, "wb") as fh:
         las.write(fh, do_compress=compress)
+
+
+@contextmanager
+def open_writer(path: str | Path, *, bounds: tuple, crs: str | None = None, las_scale_m: float = 0.001,
+                extra_dims: Mapping[str, tuple] | None = None, vlrs: tuple = ()):
+    """Write a LAS 1.4 format-6 file (``.laz``: compressed) chunk by chunk, atomically: yields a function
+    ``write(xyz, fields)`` taking float64 (n, 3) coordinates (m, the CRS's frame) and a dict of per-point
+    fields (standard format-6 fields such as ``classification``, and the extra dims), each call appending
+    n points. The file replaces ``path`` only when the block ends without error.
+
+    bounds: (lo, hi), the (3,) minimum and maximum of every point to come (m; offsets at lo floored to a
+    metre, the span checked against ``las_scale_m``). extra_dims: name -> (numpy dtype, description of at
+    most 32 characters), extra-bytes fields that CloudCompare and PDAL show as scalar fields. vlrs: more
+    ``laspy.VLR`` records. Memory: one chunk.
+    """
+    p = Path(path)
+    where = str(p)
+    header = _new_header(where, bounds[0], bounds[1], las_scale_m, crs, None)
+    if extra_dims:
+        header.add_extra_dims([laspy.ExtraBytesParams(name=k, type=np.dtype(t), description=d[:31])
+                               for k, (t, d) in extra_dims.items()])
+    header.vlrs.extend(vlrs)
+    with atomic_path(p) as tmp:
+        with laspy.open(tmp, mode="w", header=header, do_compress=p.name.lower().endswith(".laz")) as writer:
+            def write_chunk(xyz: np.ndarray, fields: Mapping[str, np.ndarray]) -> None:
+                record = laspy.ScaleAwarePointRecord.zeros(len(xyz), header=header)
+                _fill(record, xyz, fields)
+                writer.write_points(record)
+
+            yield write_chunk
 
 
 def _read_header(path: Path) -> tuple[str | None, np.ndarray | None, int]:

@@ -11,12 +11,18 @@ Reading
 * Column names map to coordinates case-insensitively after removing units in brackets
   (``"Easting (m)"``), quotes and a trailing ``_m``:
 
-  - x: ``x``, ``easting``, ``east``, ``e``
-  - y: ``y``, ``northing``, ``north``, ``n``
-  - z: ``z``, ``elevation``, ``elev``, ``height``, ``altitude``, ``alt`` (positive up)
-  - ``depth`` (positive down) is *not* taken as z unless ``depth_to_z=True``, which reads
-    ``z = -depth``; a file with depth but no elevation column is refused otherwise.
-  - ``lon``/``lat`` without x/y are refused (project to a metric CRS first).
+  - x: ``x``, ``easting``, ``east``, ``e``; or longitude ``lon``, ``long``, ``longitude`` (degrees)
+  - y: ``y``, ``northing``, ``north``, ``n``; or latitude ``lat``, ``latitude`` (degrees)
+  - z: ``elevation``, ``elev``, ``height``, ``altitude``, ``alt`` (positive up by name), ``z``
+    (positive up unless ``z_positive="down"``), or ``depth`` (positive down by name: ``z = -depth``)
+    when no elevation column exists.
+  - ``z_positive`` (``--z-positive up|down``) states the direction of the vertical column and wins
+    over its name. The checks of ``core.apply_z_positive`` apply: depths that are mostly negative are
+    refused (they are elevations), and a headerless file or a plain ``z`` column whose values are
+    mostly positive gets a warning naming ``--z-positive down``.
+  - Longitude/latitude columns (without x/y) give a cloud in the CRS EPSG:4326 (or the geographic
+    ``crs=`` given; a projected one is refused): x = longitude, y = latitude in degrees. Projecting to
+    metres is the caller's step (``sonardet.io.crs.utm_projection``).
 
   Every other column that holds numbers becomes an attribute under its header name (ints stay
   int64, floats float64, ``True``/``False`` bool); a column whose first value is not a number
@@ -28,8 +34,9 @@ Reading
 
 Chunked reading (:func:`iter_chunks`) streams the file through the same parser, ``chunk_points`` rows
 at a time, and yields x, y, z only (same layout detection and values as :func:`read`; attribute
-columns are not kept, ``columns=`` and ``depth_to_z=`` are not available). A problem in a chunk is
-reported by :func:`read` on the whole file, whose message names the line.
+columns are not kept). A problem in a chunk is
+reported by :func:`read` on the whole file, whose message names the line. ``columns=`` and ``z_positive=``
+apply as in :func:`read`; the vertical checks run on the first chunk.
 
 Writing
 -------
@@ -56,20 +63,23 @@ from pathlib import Path
 import numpy as np
 
 from sonardet.io.atomic import atomic_path
+from sonardet.io.crs import LONLAT_CRS, is_geographic
 from sonardet.io.points.core import (
     DEFAULT_CHUNK_POINTS,
     PLAUSIBLE_XY_M,
     PLAUSIBLE_Z_M,
     PointCloud,
     PointCloudError,
+    apply_z_positive,
     check_finite,
     check_plausible,
+    check_z_positive,
     merge_crs,
 )
 
 __all__ = [
     "NAME", "SUFFIXES", "BASE_SUFFIXES", "STREAMED", "READ_OPTIONS", "WRITE_OPTIONS", "AXIS_ALIASES",
-    "DEPTH_NAMES", "read", "write", "iter_chunks",
+    "DEPTH_NAMES", "LONLAT_ALIASES", "read", "write", "iter_chunks",
 ]
 
 #: Format key (``sonardet.io.points.point_format``).
@@ -81,7 +91,7 @@ SUFFIXES: tuple[str, ...] = (*BASE_SUFFIXES, *(s + ".gz" for s in BASE_SUFFIXES)
 #: Whether :func:`iter_chunks` reads the file chunk by chunk.
 STREAMED = True
 #: Keywords of ``read_points`` / ``write_points`` this format takes.
-READ_OPTIONS: tuple[str, ...] = ("columns", "depth_to_z")
+READ_OPTIONS: tuple[str, ...] = ("columns", "z_positive")
 WRITE_OPTIONS: tuple[str, ...] = ("header", "decimals")
 
 AXIS_ALIASES: dict[str, tuple[str, ...]] = {
@@ -89,8 +99,10 @@ AXIS_ALIASES: dict[str, tuple[str, ...]] = {
     "y": ("y", "northing", "north", "n"),
     "z": ("z", "elevation", "elev", "height", "altitude", "alt"),
 }
+#: Names of a positive-down vertical column.
 DEPTH_NAMES: tuple[str, ...] = ("depth",)
-GEOGRAPHIC_NAMES: tuple[str, ...] = ("lon", "long", "longitude", "lat", "latitude")
+#: Names of longitude (x) and latitude (y) columns, in degrees.
+LONLAT_ALIASES: dict[str, tuple[str, ...]] = {"x": ("lon", "long", "longitude"), "y": ("lat", "latitude")}
 
 _ENCODING = "utf-8-sig"
 _UNITS = re.compile(r"[\(\[].*?[\)\]]")
@@ -220,44 +232,69 @@ def _diagnose(
     return None
 
 
-def _resolve(names: list[str], where: str, depth_to_z: bool) -> tuple[int, int, int, bool]:
-    """Column indices of x, y, z and whether z comes from a positive-down depth column."""
+@dataclass(frozen=True)
+class _Axes:
+    """How a file's columns map to coordinates: column indices of x, y, z; z from a positive-down column;
+    z's direction unknown from the file (a plain ``z`` or a headerless file); x/y are longitude/latitude."""
+
+    xyz: tuple[int, int, int]
+    down: bool
+    ambiguous: bool
+    lonlat: bool
+
+
+def _find(norm: list[str], names: list[str], aliases: tuple[str, ...], axis: str, where: str) -> int | None:
+    """Index of the one column whose normalised name is among `aliases` (None if none); two raise."""
+    hits = [i for i, n in enumerate(norm) if n in aliases]
+    if len(hits) > 1:
+        raise PointCloudError(
+            f"{where}: header columns {[names[i] for i in hits]} all name {axis}; keep one, or pass "
+            "columns=[...] (--columns) to name the columns explicitly"
+        )
+    return hits[0] if hits else None
+
+
+def _resolve(names: list[str], where: str, z_positive: str | None) -> _Axes:
+    """The coordinate columns of a file with column `names` and the vertical direction (see the module
+    doc); raises naming the accepted names when a coordinate is missing."""
     norm = [_normalize(n) for n in names]
-    found: dict[str, int] = {}
-    for axis, aliases in AXIS_ALIASES.items():
-        hits = [i for i, n in enumerate(norm) if n in aliases]
-        if len(hits) > 1:
-            raise PointCloudError(
-                f"{where}: header columns {[names[i] for i in hits]} all name {axis}; keep one, or pass "
-                "columns=[...] to name the columns explicitly"
-            )
-        if hits:
-            found[axis] = hits[0]
-    from_depth = False
-    if "z" not in found:
+    found = {axis: _find(norm, names, aliases, axis, where) for axis, aliases in AXIS_ALIASES.items()}
+    lonlat = False
+    if found["x"] is None and found["y"] is None:
+        ll = {axis: _find(norm, names, aliases, axis, where) for axis, aliases in LONLAT_ALIASES.items()}
+        if ll["x"] is not None and ll["y"] is not None:
+            found.update(ll)
+            lonlat = True
+    down = False
+    if found["z"] is None:
         depth = [i for i, n in enumerate(norm) if n in DEPTH_NAMES]
-        if depth and depth_to_z:
-            found["z"] = depth[0]
-            from_depth = True
-        elif depth:
-            raise PointCloudError(
-                f"{where}: column {names[depth[0]]!r} is depth (positive down) and there is no elevation "
-                "(z) column; pass depth_to_z=True to read z = -depth, or name the column 'z' if it "
-                "already is an elevation (positive up)"
-            )
-    missing = [a for a in "xyz" if a not in found]
+        if depth:
+            found["z"], down = depth[0], True
+    ambiguous = found["z"] is not None and not down and norm[found["z"]] == "z"
+    if z_positive is not None:
+        down = z_positive == "down"
+    missing = [a for a in "xyz" if found[a] is None]
     if missing:
-        if any(n in GEOGRAPHIC_NAMES for n in norm) and ("x" in missing or "y" in missing):
-            raise PointCloudError(
-                f"{where}: columns {names} hold geographic longitude/latitude; project the points to a "
-                "metric CRS (e.g. UTM) first, sonardet works in metres"
-            )
         raise PointCloudError(
             f"{where}: cannot find column(s) {missing} among {names}; accepted names: "
-            f"{ {a: list(v) for a, v in AXIS_ALIASES.items()} } (case-insensitive), or pass "
-            "columns=[...] naming every column"
+            f"{ {a: list(v) for a, v in AXIS_ALIASES.items()} }, depth (positive down), lon/lat "
+            f"{ {a: list(v) for a, v in LONLAT_ALIASES.items()} } (case-insensitive), or pass columns=[...] "
+            "(--columns x,y,z,...) naming every column"
         )
-    return found["x"], found["y"], found["z"], from_depth
+    return _Axes((found["x"], found["y"], found["z"]), down, ambiguous, lonlat)
+
+
+def _cloud_crs(axes: _Axes, crs: str | None, where: str) -> str | None:
+    """The CRS of a text cloud: ``crs`` as given; for longitude/latitude columns EPSG:4326 when none is
+    given, and a projected ``crs`` is refused."""
+    if not axes.lonlat:
+        return merge_crs(None, crs, where)
+    if crs is None:
+        return LONLAT_CRS
+    if not is_geographic(crs):
+        raise PointCloudError(f"{where}: the columns hold longitude/latitude but the CRS given (--crs) is {crs}, "
+                              "not geographic; leave --crs out (EPSG:4326 is assumed) or give a geographic CRS")
+    return merge_crs(None, crs, where)
 
 
 @dataclass
@@ -268,8 +305,12 @@ class _Columns:
     gz: bool
     layout: _Layout
     names: list[str]
-    xyz: tuple[int, int, int]
-    from_depth: bool  # z is -depth
+    axes: _Axes
+
+    @property
+    def xyz(self) -> tuple[int, int, int]:
+        """Column indices of x, y, z."""
+        return self.axes.xyz
 
     @property
     def where(self) -> str:
@@ -366,14 +407,14 @@ def _attribute_columns(df, cols: _Columns) -> list[int]:
     return keep
 
 
-def _coordinates(df, cols: _Columns) -> np.ndarray:
-    """x, y, z of the rows, float64 (N, 3) metres (z = -depth for a depth column); NaN/Inf refused with
-    the line named."""
+def _coordinates(df, cols: _Columns, z_positive: str | None) -> np.ndarray:
+    """x, y, z of the rows, float64 (N, 3) metres (z = -depth for a positive-down column, checked by
+    `apply_z_positive`); NaN/Inf refused with the line named."""
     xyz = np.empty((df.shape[0], 3), dtype=np.float64)
     for k, i in enumerate(cols.xyz):
         xyz[:, k] = df.iloc[:, i].to_numpy(dtype=np.float64)
-    if cols.from_depth:
-        np.negative(xyz[:, 2], out=xyz[:, 2])
+    apply_z_positive(xyz[:, 2], cols.axes.down, ambiguous=cols.axes.ambiguous, explicit=z_positive is not None,
+                     where=cols.where)
     finite = np.isfinite(xyz).all(axis=1)
     if not finite.all():
         row = int(np.argmin(finite))
@@ -407,27 +448,29 @@ def read(
     *,
     crs: str | None = None,
     columns: Sequence[str] | None = None,
-    depth_to_z: bool = False,
+    z_positive: str | None = None,
 ) -> PointCloud:
-    """Read a text point cloud (see the module docstring): xyz float64 metres as written in the file (the
-    file's frame), numeric extra columns as attributes; ``columns``, ``crs`` and ``depth_to_z`` as in
-    ``read_points``."""
+    """Read a text point cloud (see the module docstring): xyz float64 as written in the file (the
+    file's frame: metres, or degrees for longitude/latitude columns; z up), numeric extra columns as
+    attributes; ``columns``, ``crs`` and ``z_positive`` as in ``read_points``."""
     p = Path(path)
     where = str(p)
+    check_z_positive(z_positive, where)
     suffix, gz = _base_suffix(p)
     layout = _peek(p, gz, suffix == ".pts")
     names = _column_names(layout, columns, where)
-    xi, yi, zi, from_depth = _resolve(names, where, depth_to_z)
-    cols = _Columns(p, gz, layout, names, (xi, yi, zi), from_depth)
+    axes = _resolve(names, where, z_positive)
+    cloud_crs = _cloud_crs(axes, crs, where)
+    cols = _Columns(p, gz, layout, names, axes)
     df = _read_frame(cols)
     keep = _attribute_columns(df, cols)
     if df.isna().to_numpy().any():
         # Short lines are filled with NaN by the fast reader: find them (and bad tokens) first.
         cols.diagnose()
-    xyz = _coordinates(df, cols)
+    xyz = _coordinates(df, cols, z_positive)
     _check_count(layout, xyz.shape[0], where)
     attrs = {names[i]: df.iloc[:, i].to_numpy() for i in keep}
-    return PointCloud(xyz, attrs, crs=merge_crs(None, crs, where), source=where)
+    return PointCloud(xyz, attrs, crs=cloud_crs, source=where)
 
 
 def write(path: str | Path, cloud: PointCloud, *, header: bool | None = None, decimals: int | None = None) -> None:
@@ -470,67 +513,74 @@ def write(path: str | Path, cloud: PointCloud, *, header: bool | None = None, de
             stream.close()  # writes the gzip trailer; a GzipFile does not close its ``fileobj``
 
 
-def _reader_error(path: Path, crs: str | None, what: str):
+def _reader_error(path: Path, crs: str | None, what: str, **options):
     """Raise the whole-file reader's error for a problem found in a chunk (it names the line and the
     fix); if the whole-file reader accepts the file after all, raise a PointCloudError saying `what`."""
-    read(path, crs=crs)
+    read(path, crs=crs, **options)
     raise PointCloudError(f"{path}: {what}; the chunked reader cannot read it (read_points can: convert the "
                           "file to .npz)")
 
 
-def _chunk_xyz(df, xyz_cols: tuple[int, int, int], path: Path, crs: str | None, n_before: int) -> np.ndarray:
-    """x, y, z (float64 (n, 3) m) of one parsed chunk; raise (`_reader_error`) for a non-number or NaN/Inf."""
+def _chunk_xyz(df, xyz_cols: tuple[int, int, int], path: Path, n_before: int, options: dict) -> np.ndarray:
+    """x, y, z (float64 (n, 3), as in the file) of one parsed chunk; raise (`_reader_error`) for a
+    non-number or NaN/Inf."""
     import pandas as pd
 
     cols = [df.iloc[:, i] for i in xyz_cols]
     if not all(pd.api.types.is_numeric_dtype(c) for c in cols):
-        _reader_error(path, crs, f"a coordinate after point {n_before} is not a number")
+        _reader_error(path, options["crs"], f"a coordinate after point {n_before} is not a number", **options["read"])
     xyz = np.empty((len(df), 3), dtype=np.float64)
     for k, c in enumerate(cols):
         xyz[:, k] = c.to_numpy(dtype=np.float64)
     if not np.isfinite(xyz).all():
-        _reader_error(path, crs, f"non-finite coordinates after point {n_before}")
+        _reader_error(path, options["crs"], f"non-finite coordinates after point {n_before}", **options["read"])
     if _implausible(xyz).any():
-        _reader_error(path, crs, f"implausible coordinates after point {n_before}")
+        _reader_error(path, options["crs"], f"implausible coordinates after point {n_before}", **options["read"])
     return xyz
 
 
 def iter_chunks(
-    path: str | Path, *, crs: str | None = None, chunk_points: int = DEFAULT_CHUNK_POINTS
+    path: str | Path, *, crs: str | None = None, chunk_points: int = DEFAULT_CHUNK_POINTS,
+    columns: Sequence[str] | None = None, z_positive: str | None = None,
 ) -> Iterator[PointCloud]:
-    """The file's x, y, z (float64 metres as written, the file's frame) in chunks of at most
-    ``chunk_points`` rows, in file order, each a :class:`PointCloud` without attributes (``crs`` as in
-    ``read_points``); the values are those :func:`read` returns. Memory: one parsed chunk, roughly 150
-    bytes per point. A bad line in any chunk raises the error :func:`read` gives for the whole file."""
+    """The file's x, y, z (float64 as :func:`read` returns them: the file's frame, z up) in chunks of at
+    most ``chunk_points`` rows, in file order, each a :class:`PointCloud` without attributes (``crs``,
+    ``columns`` and ``z_positive`` as in ``read_points``). Memory: one parsed chunk, roughly 150 bytes per
+    point. A bad line in any chunk raises the error :func:`read` gives for the whole file; the vertical
+    checks (``core.apply_z_positive``) look at the first chunk."""
     import pandas as pd
 
     p = Path(path)
     where = str(p)
-    merged = merge_crs(None, crs, where)
+    check_z_positive(z_positive, where)
     suffix, gz = _base_suffix(p)
     layout = _peek(p, gz, suffix == ".pts")
-    ncols = len(layout.first_tokens)
-    names = [h.strip() for h in layout.header] if layout.header is not None else (
-        ["x", "y", "z"] + [f"col{i}" for i in range(3, ncols)])
-    if len(names) < 3 or len(set(names)) != len(names):
-        _reader_error(p, crs, "fewer than 3 or duplicate columns")
-    xi, yi, zi, _ = _resolve(names, where, False)
+    names = _column_names(layout, columns, where)
+    axes = _resolve(names, where, z_positive)
+    merged = _cloud_crs(axes, crs, where)
+    options = {"crs": crs, "read": {"columns": columns, "z_positive": z_positive}}
     n, checked = 0, False
     try:
         with pd.read_csv(p, chunksize=chunk_points, **_csv_options(layout, gz)) as reader:
             for df in reader:
                 if df.shape[1] != len(names):
-                    _reader_error(p, crs, f"a line after point {n} has {df.shape[1]} columns, not {len(names)}")
+                    _reader_error(p, crs, f"a line after point {n} has {df.shape[1]} columns, not {len(names)}",
+                                  **options["read"])
                 if not checked and df.isna().to_numpy().any():
                     # Short lines read as NaN, but so does a legitimate 'nan' attribute: let the whole-file
                     # reader decide once (it raises naming the line, or accepts the file).
-                    read(p, crs=crs)
+                    read(p, crs=crs, **options["read"])
                     checked = True
-                xyz = _chunk_xyz(df, (xi, yi, zi), p, crs, n)
+                xyz = _chunk_xyz(df, axes.xyz, p, n, options)
+                if n == 0:
+                    apply_z_positive(xyz[:, 2], axes.down, ambiguous=axes.ambiguous,
+                                     explicit=z_positive is not None, where=where)
+                elif axes.down:
+                    np.negative(xyz[:, 2], out=xyz[:, 2])
                 n += len(xyz)
                 yield PointCloud(xyz, crs=merged, source=where)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, OSError, EOFError, UnicodeError) as exc:
-        _reader_error(p, crs, f"cannot parse the file ({exc})")
+        _reader_error(p, crs, f"cannot parse the file ({exc})", **options["read"])
     if n == 0:
         raise PointCloudError(f"{where}: no points")
     _check_count(layout, n, where)
