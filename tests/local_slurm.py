@@ -28,7 +28,7 @@ from pathlib import Path
 
 #: Binaries the cluster needs (Debian paths are on PATH for root; /usr/sbin added for other users).
 BINARIES = ("munged", "mungekey", "mariadbd", "mariadb-install-db", "mariadb", "slurmdbd", "slurmctld",
-            "slurmd", "sbatch", "srun", "sacct", "sacctmgr", "squeue", "sinfo")
+            "slurmd", "sbatch", "srun", "scancel", "sacct", "sacctmgr", "squeue", "sinfo")
 CLUSTER = "sonardet"
 PARTITION = "main"
 
@@ -103,7 +103,9 @@ class LocalSlurm:
         self._start_slurm()
 
     def stop(self) -> None:
-        """SIGTERM to every daemon started here (newest first), SIGKILL after 20 s."""
+        """Cancel the jobs still queued or running (a job's processes outlive slurmd), then SIGTERM to
+        every daemon started here (newest first), SIGKILL after 20 s."""
+        self._cancel_jobs()
         for name, proc in reversed(self.procs):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
@@ -113,6 +115,21 @@ class LocalSlurm:
                     proc.kill()
                     proc.wait()
         self.procs.clear()
+
+    def _jobs(self) -> list[str]:
+        out = subprocess.run([_which("squeue"), "-h", "-o", "%A"], capture_output=True, text=True, env=self.env)
+        return out.stdout.split() if out.returncode == 0 else []
+
+    def _cancel_jobs(self) -> None:
+        running = dict(self.procs)
+        if not all(n in running and running[n].poll() is None for n in ("slurmctld", "slurmd")):
+            return
+        jobs = self._jobs()
+        if jobs:
+            subprocess.run([_which("scancel"), *jobs], capture_output=True, env=self.env)
+            t0 = time.monotonic()
+            while self._jobs() and time.monotonic() - t0 < 60:
+                time.sleep(1)
 
     def _spawn(self, name: str, argv: list[str]) -> subprocess.Popen:
         log = open(self.root / "log" / f"{name}.out", "ab")

@@ -81,6 +81,9 @@ def slurm_run(smoke_run, tmp_path_factory):
               "total_s": round(time.monotonic() - t0, 1), "jobs": len(sacct)}
     print(f"\nSLURM run: {json.dumps(timing)}")
     (root / "timing.json").write_text(json.dumps(timing, indent=1))
+    (root / "snakemake.log").write_text(run.stdout + run.stderr)
+    (root / "snakemake_gpu.log").write_text(gpu.stdout + gpu.stderr)
+    (root / "sacct.json").write_text(json.dumps(sacct, indent=1))
     return {"work": work, "log": run.stdout + run.stderr, "gpu_log": gpu.stdout + gpu.stderr, "sacct": sacct,
             "timing": timing}
 
@@ -117,28 +120,54 @@ def _files(root: Path, patterns: tuple[str, ...]) -> list[str]:
     return sorted(str(p.relative_to(root)) for pat in patterns for p in root.glob(pat))
 
 
-#: Files whose bytes must match: objects, templates, every scene of every dataset, every detection.
-SAME_BYTES = ("results/objects/*", "results/templates/*.npz", "results/splits/*.txt", "results/scenes/*",
-              "results/realism/scenes/*", "results/hybrid/scenes/*", "results/realism_ablation/*/scenes/*",
+#: Files whose bytes must match: objects, templates, splits, the soundings of every scene of every
+#: dataset, every detection.
+SAME_BYTES = ("results/objects/*", "results/templates/*.npz", "results/splits/*.txt", "results/scenes/*.npz",
+              "results/realism/scenes/*.npz", "results/hybrid/scenes/*.npz", "results/realism_ablation/*/scenes/*.npz",
               "results/detections/**/*.json")
+#: Scene descriptions: equal but for the seconds each stage took (`timings_s`).
+SCENE_JSON = ("results/scenes/*.json", "results/realism/scenes/*.json", "results/hybrid/scenes/*.json",
+              "results/realism_ablation/*/scenes/*.json")
+METRICS = ("results/eval/**/metrics.json", "results/eval/compare/*.json")
+
+
+def _without_timings(doc):
+    if isinstance(doc, dict):
+        return {k: _without_timings(v) for k, v in doc.items() if k != "timings_s"}
+    if isinstance(doc, list):
+        return [_without_timings(v) for v in doc]
+    return doc
 
 
 def test_results_equal_the_local_run(slurm_run, smoke_run):
+    import torch
+
     work = slurm_run["work"]
     files = _files(smoke_run, SAME_BYTES)
-    assert any(f.endswith(".npz") and f.startswith("results/scenes/") for f in files)
+    assert any(f.startswith("results/scenes/") for f in files) and any("/detections/" in f for f in files)
     assert _files(work, SAME_BYTES) == files
     differ = [f for f in files if (work / f).read_bytes() != (smoke_run / f).read_bytes()]
     assert not differ, differ
-    # Evaluation metrics of every method on every dataset, and the comparisons.
-    metrics = _files(smoke_run, ("results/eval/**/metrics.json", "results/eval/compare/*.json"))
-    assert len(metrics) > 30 and _files(work, ("results/eval/**/metrics.json", "results/eval/compare/*.json")) == metrics
+    scenes = _files(smoke_run, SCENE_JSON)
+    assert _files(work, SCENE_JSON) == scenes
+    for f in scenes:
+        a, b = (_without_timings(json.loads((root / f).read_text())) for root in (work, smoke_run))
+        assert a == b, f
+    # Evaluation metrics of every method on every dataset, the comparisons and the PR curves.
+    metrics = _files(smoke_run, METRICS)
+    assert len(metrics) > 30 and _files(work, METRICS) == metrics
     for f in metrics:
         assert json.loads((work / f).read_text()) == json.loads((smoke_run / f).read_text()), f
     for f in _files(smoke_run, ("results/eval/**/pr_curves.npz",)):
         a, b = np.load(work / f), np.load(smoke_run / f)
         assert sorted(a.files) == sorted(b.files) and all(np.array_equal(a[k], b[k]) for k in a.files), f
-    # Trained models: the same losses, epoch by epoch (the per-epoch seconds differ).
+    # Trained models: the same weights (sasa_25 retrained through the GPU profile too) and the same
+    # losses epoch by epoch (the seconds per epoch differ).
+    models = _files(smoke_run, ("results/models/*/model.pt",))
+    assert len(models) >= 4
+    for f in models:
+        a, b = (torch.load(root / f, map_location="cpu", weights_only=False)["state_dict"] for root in (work, smoke_run))
+        assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a), f
     for f in _files(smoke_run, ("results/models/*/loss.csv",)):
         a, b = ((root / f).read_text().splitlines() for root in (work, smoke_run))
         drop = a[0].split(",").index("epoch_s")
