@@ -12,8 +12,9 @@ Accounting: `accounting_storage/none` leaves `sacct` without history, and `jobco
 feeds `sacct --completion`, which the SLURM executor plugin does not use (it asks `sacct` for job
 states). slurmdbd with MariaDB is what clusters run, so that is what this uses.
 
-Needs Debian's slurmctld, slurmd, slurm-client, slurmdbd, munge and mariadb-server
-(`scripts/system_packages.sh slurm`). Used as a context manager; `stop()` ends the daemons it started.
+Needs root (slurmd starts jobs as their user) and Debian's slurmctld, slurmd, slurm-client, slurmdbd,
+munge and mariadb-server (`scripts/system_packages.sh slurm`). Used as a context manager; `stop()`
+ends the daemons it started and removes their state.
 """
 
 from __future__ import annotations
@@ -104,7 +105,8 @@ class LocalSlurm:
 
     def stop(self) -> None:
         """Cancel the jobs still queued or running (a job's processes outlive slurmd), then SIGTERM to
-        every daemon started here (newest first), SIGKILL after 20 s."""
+        every daemon started here (newest first), SIGKILL after 20 s; then remove the database, key,
+        spool and state (the configs and logs stay)."""
         self._cancel_jobs()
         for name, proc in reversed(self.procs):
             if proc.poll() is None:
@@ -115,6 +117,8 @@ class LocalSlurm:
                     proc.kill()
                     proc.wait()
         self.procs.clear()
+        for d in ("mysql", "munge", "state", "spool", "run"):
+            shutil.rmtree(self.root / d, ignore_errors=True)
 
     def _jobs(self) -> list[str]:
         out = subprocess.run([_which("squeue"), "-h", "-o", "%A"], capture_output=True, text=True, env=self.env)
