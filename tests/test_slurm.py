@@ -67,6 +67,7 @@ def slurm_run(smoke_run, tmp_path_factory):
             raise RuntimeError(msg)
         pytest.skip(msg)
     root = tmp_path_factory.mktemp("slurm")
+    (root / "work").mkdir()
     work = copy_workflow(root / "work")
     (work / "config_smoke.yaml").write_text((smoke_run / "config_smoke.yaml").read_text())
     t0 = time.monotonic()
