@@ -59,7 +59,8 @@ def test_profiles_are_complete_workflow_profiles():
     what the default sets. No account placeholder (sbatch rejects an unknown account), no paths, no
     default-resources (a user's account and partition there would be replaced as a whole)."""
     default = _profile("default")
-    rules = {k.split(":")[1] for k in _rule_blocks()}
+    # rule names; those made in a loop from f-strings ("train_{_method}") as patterns
+    rules = [re.compile(re.sub(r"\\\{[^}]*\\\}", r"\\w+", re.escape(k.split(":")[1])) + "$") for k in _rule_blocks()]
     for name in PROFILES:
         p = _profile(name)
         text = (REPO / "profiles" / name / "config.yaml").read_text()
@@ -67,11 +68,13 @@ def test_profiles_are_complete_workflow_profiles():
         assert set(default) - {"cores", "latency-wait"} <= set(p), name
         assert "default-resources" not in p and "slurm_account" not in yaml.safe_dump(p) and "your_" not in text
         assert not re.search(r"(^|\s)/\w", yaml.safe_dump(p)), f"{name}: a machine path"
-        assert set(p.get("set-resources", {})) <= rules, f"{name}: set-resources names an unknown rule"
+        for rule in p.get("set-resources", {}):
+            assert any(r.match(rule) for r in rules), f"{name}: set-resources names an unknown rule {rule}"
         assert "--workflow-profile profiles/" + name in text
     gpu, cpu = _profile("slurm-gpu"), _profile("slurm")
-    assert gpu.pop("set-resources") == {"train": {"gpu": 1}} and "set-resources" not in cpu
-    assert gpu == cpu
+    trainings = gpu.pop("set-resources")
+    assert trainings and all(r.startswith("train_") and v == {"gpu": 1} for r, v in trainings.items())
+    assert "set-resources" not in cpu and gpu == cpu
 
 
 def _dry_run(work: Path, profile: str, configfile: str) -> dict[str, list[dict]]:
@@ -107,14 +110,15 @@ def test_slurm_profile_sizes_every_job(workflow_copy):
 
     scheduling = read_config(REPO / "tests" / "config" / "smoke.yaml")["workflow"]
     jobs = _dry_run(workflow_copy, "slurm", "tests/config/smoke.yaml")
-    assert "train" in jobs and "detect_dataset_synthetic" in jobs and "ablation_point" in jobs
+    train = [r for rule, rs in jobs.items() if rule.startswith("train_") for r in rs]
+    assert len(train) >= 4 and "detect_dataset_synthetic" in jobs and "ablation_point" in jobs
     for rule, resources in jobs.items():
         if rule == "all":  # the target: no job of its own
             continue
         for r in resources:
             assert int(r["mem_mb"]) in scheduling["mem_mb"].values(), (rule, r)
             assert int(r["runtime"]) in scheduling["runtime_min"].values() and "gpu" not in r, (rule, r)
-    assert {(r["mem_mb"], r["runtime"]) for r in jobs["train"]} == {
+    assert {(r["mem_mb"], r["runtime"]) for r in train} == {
         (str(scheduling["mem_mb"]["train"]), str(scheduling["runtime_min"]["train"]))}
 
 
@@ -127,12 +131,14 @@ def test_gpu_profile_covers_the_study_training(workflow_copy):
     paper = read_config(REPO / "config" / "paper.yaml")
     assert paper["sasa"]["preset"] == "study"
     jobs = _dry_run(workflow_copy, "slurm-gpu", "config/paper.yaml")
-    assert len(jobs["train"]) >= 3
-    for r in jobs["train"]:
+    trainings = sorted(rule for rule in jobs if rule.startswith("train_"))
+    # the profile names exactly the study's training rules (one per trained method)
+    assert trainings == sorted(_profile("slurm-gpu")["set-resources"]) and len(trainings) >= 3
+    for r in (r for rule in trainings for r in jobs[rule]):
         assert r["gpu"] == "1", r
         assert int(r["runtime"]) == paper["workflow"]["runtime_min"]["train"], r
         assert int(r["runtime"]) * 60 >= 1.5 * STUDY["epochs"] * STUDY_EPOCH_S_CPU, r
         assert int(r["mem_mb"]) == paper["workflow"]["mem_mb"]["train"] >= 6600, r  # 6.6 GB measured peak
     for rule, resources in jobs.items():
-        if rule != "train":
+        if rule not in trainings:
             assert all("gpu" not in r for r in resources), rule
