@@ -16,6 +16,7 @@ rule ablation_point:
     threads: lambda w: ABLATION_METHOD[w.point].threads
     resources:
         mem_mb=MEM_MB["ablation"],
+        runtime=RUNTIME_MIN["ablation"],
     params:
         point=lambda w: ABLATION[w.point],
         method=lambda w: ABLATION_METHOD[w.point].to_dict(),
@@ -48,6 +49,7 @@ rule ablation_reference:
     threads: 1
     resources:
         mem_mb=MEM_MB["evaluate"],
+        runtime=RUNTIME_MIN["evaluate"],
     params:
         methods=ablation_reference_methods(),
         evaluation=config["evaluation"],
@@ -78,6 +80,7 @@ rule realism_ablation:
     threads: 1
     resources:
         mem_mb=MEM_MB["evaluate"],
+        runtime=RUNTIME_MIN["evaluate"],
     params:
         effects=realism_ablation_effects(),
         evaluation=config["evaluation"],

@@ -159,9 +159,11 @@ ABLATION = (
 )
 ABLATION_METHOD = {name: point_method(p, config) for name, p in ABLATION.items()}
 ABLATION_SCENES = SPLIT["dev"][: config["ablation"]["n_scenes"]]
-#: Scheduling per rule group, from the config (workflow.priorities, workflow.mem_mb).
+#: Scheduling per rule group, from the config (workflow.priorities, workflow.mem_mb,
+#: workflow.runtime_min): every rule's priority and its job's memory and wall-clock limit.
 PRIORITY = config["workflow"]["priorities"]
 MEM_MB = config["workflow"]["mem_mb"]
+RUNTIME_MIN = config["workflow"]["runtime_min"]
 
 
 wildcard_constraints:

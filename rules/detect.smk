@@ -21,6 +21,7 @@ rule detect_scene:
     threads: lambda w: METHOD[w.method].threads
     resources:
         mem_mb=MEM_MB["detect"],
+        runtime=RUNTIME_MIN["detect"],
     params:
         method=lambda w: METHOD[w.method].to_dict(),
         classes=CLASSES,
@@ -58,6 +59,7 @@ for _dataset in DATASETS:
         threads: lambda w: METHOD[w.method].threads
         resources:
             mem_mb=MEM_MB["detect"],
+            runtime=RUNTIME_MIN["detect"],
         params:
             method=lambda w: METHOD[w.method].to_dict(),
             classes=CLASSES,
@@ -87,6 +89,7 @@ for _method in TRAINED:
         threads: METHOD[_method].threads
         resources:
             mem_mb=MEM_MB["train"],
+            runtime=RUNTIME_MIN["train"],
         params:
             method=METHOD[_method].to_dict(),
         script:

@@ -20,6 +20,7 @@ rule evaluate:
     threads: 1
     resources:
         mem_mb=MEM_MB["evaluate"],
+        runtime=RUNTIME_MIN["evaluate"],
     params:
         evaluation=config["evaluation"],
         classes=CLASSES,
@@ -48,6 +49,7 @@ rule compare:
     threads: 1
     resources:
         mem_mb=MEM_MB["evaluate"],
+        runtime=RUNTIME_MIN["evaluate"],
     params:
         detections=lambda w: {
             m: detection_files(m, w.dataset) for m in methods_on(w.dataset)

@@ -21,6 +21,7 @@ rule noise_characterization:
     threads: 1
     resources:
         mem_mb=MEM_MB["evaluate"],
+        runtime=RUNTIME_MIN["evaluate"],
     params:
         noise=config["noise"],
         sensor=config["sensor"],

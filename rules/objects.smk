@@ -15,6 +15,7 @@ rule object_mesh:
     threads: 1
     resources:
         mem_mb=MEM_MB["objects"],
+        runtime=RUNTIME_MIN["objects"],
     params:
         objects=config["objects"],
     script:
@@ -37,6 +38,7 @@ rule template_scan:
     threads: 1
     resources:
         mem_mb=MEM_MB["objects"],
+        runtime=RUNTIME_MIN["objects"],
     params:
         sensor=config["sensor"],
         templates=config["templates"],

@@ -35,6 +35,7 @@ rule report:
     threads: 1
     resources:
         mem_mb=MEM_MB["report"],
+        runtime=RUNTIME_MIN["report"],
     params:
         manifest=report_manifest(),
     script:
@@ -66,6 +67,7 @@ rule run_timeline:
     threads: 1
     resources:
         mem_mb=MEM_MB["report"],
+        runtime=RUNTIME_MIN["report"],
     params:
         benchmarks="results/benchmarks",
         cores=workflow.cores,

@@ -27,6 +27,7 @@ for _klass, (_priority, _ids) in SCENE_PRIORITY.items():
         threads: 1
         resources:
             mem_mb=MEM_MB["simulate"],
+            runtime=RUNTIME_MIN["simulate"],
         params:
             config={
                 k: config[k]
@@ -53,6 +54,7 @@ rule simulate_scene_realism:
     threads: 1
     resources:
         mem_mb=MEM_MB["simulate"],
+        runtime=RUNTIME_MIN["simulate"],
     params:
         config={
             k: v
@@ -80,6 +82,7 @@ rule simulate_scene_mismatch:
     threads: 1
     resources:
         mem_mb=MEM_MB["simulate"],
+        runtime=RUNTIME_MIN["simulate"],
     params:
         config={
             k: v
@@ -107,6 +110,7 @@ rule simulate_scene_realism_effect:
     threads: 1
     resources:
         mem_mb=MEM_MB["simulate"],
+        runtime=RUNTIME_MIN["simulate"],
     params:
         config=lambda w: {
             k: v
@@ -135,6 +139,7 @@ rule simulate_scene_hybrid:
     threads: 1
     resources:
         mem_mb=MEM_MB["simulate"],
+        runtime=RUNTIME_MIN["simulate"],
     params:
         config={
             k: config[k]
@@ -157,6 +162,7 @@ rule split:
     threads: 1
     resources:
         mem_mb=MEM_MB["simulate"],
+        runtime=RUNTIME_MIN["simulate"],
     params:
         split=config["split"],
         n_scenes=config["scenes"]["n_scenes"],
@@ -181,6 +187,7 @@ rule dataset_stats:
     threads: 1
     resources:
         mem_mb=MEM_MB["evaluate"],
+        runtime=RUNTIME_MIN["evaluate"],
     params:
         classes=CLASSES,
     script:

@@ -32,6 +32,7 @@ checkpoint survey_tiles:
     threads: 1
     resources:
         mem_mb=MEM_MB["survey"],
+        runtime=RUNTIME_MIN["survey"],
     params:
         split=lambda w: {
             k: SURVEYS[w.survey][k]
@@ -65,6 +66,7 @@ rule detect_survey_tile:
     threads: lambda w: SURVEY_METHOD[w.survey].threads
     resources:
         mem_mb=MEM_MB["survey"],
+        runtime=RUNTIME_MIN["survey"],
     params:
         method=lambda w: SURVEY_METHOD[w.survey].to_dict(),
         classes=CLASSES,
@@ -107,6 +109,7 @@ rule survey_detections:
     threads: 1
     resources:
         mem_mb=MEM_MB["survey"],
+        runtime=RUNTIME_MIN["survey"],
     params:
         method=lambda w: SURVEY_METHOD[w.survey].name,
         all_hypotheses=lambda w: SURVEYS[w.survey]["all_hypotheses"],

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +82,32 @@ def copy_workflow(work: Path) -> Path:
     return work
 
 
+def smoke_config_file(work: Path) -> Path:
+    """tests/config/smoke.yaml copied into `work` as config_smoke.yaml, with the real survey line for the
+    noise characterisation and the hybrid test set when the real data is there."""
+    path = work / "config_smoke.yaml"
+    shutil.copy(REPO / "tests" / "config" / "smoke.yaml", path)
+    if REAL_FILE is not None:
+        soundings = REAL_FILE.parent / "r2sonic_sfbay_soundings.csv.gz"
+        with open(path, "a") as fh:
+            fh.write(f"noise: {{survey: {json.dumps(str(REAL_FILE))}}}\n")
+            fh.write(f"hybrid_test: {{n_scenes: 1, soundings: {json.dumps(str(soundings))}}}\n")
+    return path
+
+
+@pytest.fixture(scope="session")
+def smoke_run(tmp_path_factory) -> Path:
+    """A real `snakemake --cores 2` run of the whole DAG on the smoke config (once per session: the
+    workflow tests, the report in a browser and the SLURM comparison read it)."""
+    work = tmp_path_factory.mktemp("smoke")
+    copy_workflow(work)
+    smoke_config_file(work)
+    cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "--configfile", "config_smoke.yaml"]
+    proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return work
+
+
 def match_by_centre(a: list, b: list) -> list[tuple[dict, dict, float]]:
     """Greedy one-to-one matching of detections by box-centre distance (m), closest pairs first."""
     pairs = sorted((float(np.linalg.norm(np.subtract(x["box"][:3], y["box"][:3]))), i, j)
@@ -92,4 +121,5 @@ def match_by_centre(a: list, b: list) -> list[tuple[dict, dict, float]]:
     return out
 
 
-__all__ = ["REAL_DIR", "REAL_FILE", "REPO", "copy_workflow", "match_by_centre", "needs_real", "validate_config"]
+__all__ = ["REAL_DIR", "REAL_FILE", "REPO", "copy_workflow", "match_by_centre", "needs_real", "smoke_config_file",
+           "validate_config"]

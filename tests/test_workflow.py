@@ -1,7 +1,6 @@
 """End-to-end: a real `snakemake --cores 2` run of the whole DAG on the tiny smoke config."""
 
 import json
-import shutil
 import subprocess
 import sys
 
@@ -9,31 +8,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import REAL_FILE, REPO, copy_workflow
+from conftest import REAL_FILE
 from sonardet.io.templates import read_templates
 from sonardet.objects import read_object
 
 pytestmark = pytest.mark.slow
 
 
-@pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    work = tmp_path_factory.mktemp("smoke")
-    copy_workflow(work)
-    cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "--configfile", "config_smoke.yaml"]
-    shutil.copy(REPO / "tests" / "config" / "smoke.yaml", work / "config_smoke.yaml")
-    if REAL_FILE is not None:
-        with open(work / "config_smoke.yaml", "a") as fh:
-            fh.write(f"noise: {{survey: {json.dumps(str(REAL_FILE))}}}\n")
-            fh.write(f"hybrid_test: {{n_scenes: 1, soundings: {json.dumps(str(REAL_SOUNDINGS))}}}\n")
-    proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return work
-
-
 #: The smoke config's classes: the four reef elements and a fifth one from a plugin (tests/plugins).
 CLASSES = ["reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s", "concrete_cube"]
-REAL_SOUNDINGS = REAL_FILE.parent / "r2sonic_sfbay_soundings.csv.gz" if REAL_FILE is not None else None
 #: Test sets evaluated on their own (the hybrid one needs the real line), and the development sets.
 TEST_SETS = ("synthetic", "realism") + (("hybrid",) if REAL_FILE is not None else ())
 DEV_SETS = ("dev", "realism_dev")
