@@ -160,3 +160,30 @@ def test_weighted_batch_norm_gradient_is_the_population_gradient():
     assert torch.allclose(bn1.weight.grad, bn2.weight.grad, atol=1e-10)
     assert torch.allclose(bn1.bias.grad, bn2.bias.grad, atol=1e-10)
     assert all(torch.allclose(a.double(), b.double(), atol=1e-12) for a, b in zip(bn1.buffers(), bn2.buffers()))
+
+
+def test_fused_weighted_batch_norm_kernel_equals_torch_formulation(monkeypatch):
+    from sonardet.detect.sasa import backbone
+    from sonardet.detect.sasa.backbone import GroupRows, weighted_batch_norm_relu
+
+    assert backbone.kernels is not None
+    g = torch.Generator().manual_seed(6)
+    h = torch.randn(3000, 24, generator=g) * 2 + 5  # an offset mean: the statistics must not cancel
+    w = torch.randint(1, 5, (3000,), generator=g)
+    rows = GroupRows(torch.arange(3000), torch.arange(3000), w, torch.ones(3000, dtype=torch.long), int(w.sum()))
+    up = torch.randn(3000, 24, generator=g)
+    out = []
+    for fused in (True, False):
+        if not fused:
+            monkeypatch.setattr(backbone, "kernels", None)
+        torch.manual_seed(1)
+        bn = nn.BatchNorm1d(24)
+        with torch.no_grad():
+            bn.weight.uniform_(0.5, 1.5)
+            bn.bias.uniform_(-0.5, 0.5)
+        x = h.clone().requires_grad_()
+        y = weighted_batch_norm_relu(x, bn, rows)
+        (y * up).sum().backward()
+        out.append([y.detach(), x.grad, bn.weight.grad, bn.bias.grad, bn.running_mean, bn.running_var])
+    for a, b in zip(*out):
+        assert _rel(a, b) < 1e-5

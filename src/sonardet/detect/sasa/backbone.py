@@ -38,6 +38,11 @@ from torch import nn
 
 from .ops import ball_query_shells, furthest_point_sample, index_points, semantic_furthest_point_sample
 
+try:  # fused CPU kernels of the weighted batch norm (optional: the PyTorch formulation runs without Numba)
+    from .ops import kernels
+except ImportError:  # pragma: no cover - Numba is a dependency
+    kernels = None
+
 __all__ = ["MLP", "GroupedMLP", "GroupRows", "SALayer", "SASABackbone", "batch_norm_rows", "group_rows",
            "limit_threads", "shared_mlp1d", "weighted_batch_norm_relu"]
 
@@ -172,6 +177,34 @@ class _WeightedBatchNormReLU(torch.autograd.Function):
         return dh, None, dgamma, dbeta, None
 
 
+class _FusedWeightedBatchNormReLU(torch.autograd.Function):
+    """:class:`_WeightedBatchNormReLU` through the fused CPU kernels of :mod:`.ops.kernels` (float32)."""
+
+    @staticmethod
+    def forward(ctx, h, wn, gamma, beta, eps):
+        chunks = kernels.parallel_chunks(torch.get_num_threads())
+        y, mean, var = kernels.weighted_bn_relu_forward(h.detach().numpy(), wn.numpy(), gamma.detach().numpy(),
+                                                        beta.detach().numpy(), float(eps), chunks)
+        y, mean, var = torch.from_numpy(y), torch.from_numpy(mean), torch.from_numpy(var)
+        ctx.save_for_backward(h, y, wn, gamma, mean, torch.rsqrt(var + eps))
+        mean, var = mean.to(h.dtype), var.to(h.dtype)
+        ctx.mark_non_differentiable(mean, var)
+        return y, mean, var
+
+    @staticmethod
+    def backward(ctx, gy, _gmean, _gvar):
+        h, y, wn, gamma, mean, invstd = ctx.saved_tensors
+        chunks = kernels.parallel_chunks(torch.get_num_threads())
+        dh, dgamma, dbeta = kernels.weighted_bn_relu_backward(gy.contiguous().numpy(), y.numpy(), h.detach().numpy(),
+                                                              wn.numpy(), mean.numpy(), invstd.numpy(),
+                                                              gamma.detach().numpy(), chunks)
+        return torch.from_numpy(dh), None, torch.from_numpy(dgamma).to(h.dtype), torch.from_numpy(dbeta).to(h.dtype), None
+
+
+def _fused_ok(h: torch.Tensor) -> bool:
+    return kernels is not None and h.device.type == "cpu" and h.dtype == torch.float32 and h.is_contiguous()
+
+
 def weighted_batch_norm_relu(h: torch.Tensor, bn: nn.BatchNorm1d, rows: GroupRows) -> torch.Tensor:
     """ReLU(BatchNorm(h)) of rows h (R, C) that stand for ``rows.weight`` slots each.
 
@@ -186,7 +219,8 @@ def weighted_batch_norm_relu(h: torch.Tensor, bn: nn.BatchNorm1d, rows: GroupRow
     if not (bn.track_running_stats and bn.affine):
         raise ValueError("the weighted batch norm needs an affine batch norm with running statistics")
     wn = rows.weight.to(h.dtype) / rows.total
-    y, mean, var = _WeightedBatchNormReLU.apply(h, wn, bn.weight, bn.bias, bn.eps)
+    fn = _FusedWeightedBatchNormReLU if _fused_ok(h) else _WeightedBatchNormReLU
+    y, mean, var = fn.apply(h, wn, bn.weight, bn.bias, bn.eps)
     with torch.no_grad():
         bn.num_batches_tracked.add_(1)
         f = 1.0 / float(bn.num_batches_tracked) if bn.momentum is None else bn.momentum

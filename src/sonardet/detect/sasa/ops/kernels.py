@@ -15,8 +15,12 @@ the dtype of the coordinates, one rounding per operation, no fused multiply-add)
   whose cells are at least the largest radius (with a rounding margin); a query tests only the points
   of its 3 x 3 columns, sorts its hits by index and keeps the first ``nsample`` of every shell.
 
+* **Weighted batch norm + ReLU** (:func:`weighted_bn_relu_forward` / ``_backward``): the compact
+  grouped MLP's normalisation fused into two passes forward and two backward (float64 statistics),
+  parallel over row chunks with torch's thread count.
+
 Inputs must be finite (callers fall back to the PyTorch operators otherwise). Compiled on first use
-and cached on disk (``cache=True``); single-threaded.
+and cached on disk (``cache=True``); FPS and the ball query are single-threaded.
 """
 
 from __future__ import annotations
@@ -26,7 +30,8 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["FPS_BLOCK", "fps_kernel", "ball_query_kernel", "grid_cell"]
+__all__ = ["FPS_BLOCK", "fps_kernel", "ball_query_kernel", "grid_cell", "weighted_bn_relu_forward",
+           "weighted_bn_relu_backward", "parallel_chunks"]
 
 #: Points per FPS block (bounding-box test granularity).
 FPS_BLOCK = 64
@@ -302,3 +307,90 @@ def grid_cell(r_max: float, scale: float, n_points: int, extent: float) -> float
     cloud over a large extent never needs more than ~4 columns per point."""
     cell = r_max * (1.0 + 1e-3) + 1e-5 * (1.0 + scale)
     return max(cell, extent / math.sqrt(4.0 * max(n_points, 1)))
+
+
+_JIT_PAR = dict(cache=True, nogil=True, parallel=True)
+
+
+@numba.njit(**_JIT_PAR)
+def _weighted_sums(h, wn, centre, nchunks):
+    """Per-chunk weighted column sums of (h - centre) and (h - centre)^2 (float64, (nchunks, C) each)."""
+    R, C = h.shape
+    s1 = np.zeros((nchunks, C))
+    s2 = np.zeros((nchunks, C))
+    for k in numba.prange(nchunks):
+        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
+            w = np.float64(wn[i])
+            for c in range(C):
+                d = np.float64(h[i, c]) - centre[c]
+                s1[k, c] += w * d
+                s2[k, c] += w * d * d
+    return s1, s2
+
+
+@numba.njit(**_JIT_PAR)
+def weighted_bn_relu_forward(h, wn, gamma, beta, eps, nchunks):
+    """Fused weighted batch norm + ReLU over rows h (R, C) float32 with row weights wn (R,) summing to 1.
+
+    Returns (y (R, C) float32, mean (C,) float64, biased variance (C,) float64). The statistics are
+    accumulated in float64 (two passes: a provisional mean, then the centred sums).
+    """
+    R, C = h.shape
+    s1, _ = _weighted_sums(h, wn, np.zeros(C), nchunks)
+    mean0 = s1.sum(axis=0)
+    s1, s2 = _weighted_sums(h, wn, mean0, nchunks)
+    shift = s1.sum(axis=0)
+    mean = mean0 + shift
+    var = np.maximum(s2.sum(axis=0) - shift * shift, 0.0)
+    scale = (gamma.astype(np.float64) / np.sqrt(var + eps)).astype(np.float32)
+    offset = (beta.astype(np.float64) - mean * (gamma.astype(np.float64) / np.sqrt(var + eps))).astype(np.float32)
+    y = np.empty_like(h)
+    for k in numba.prange(nchunks):
+        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
+            for c in range(C):
+                v = h[i, c] * scale[c] + offset[c]
+                y[i, c] = v if v > 0 else np.float32(0.0)
+    return y, mean, var
+
+
+@numba.njit(**_JIT_PAR)
+def weighted_bn_relu_backward(gy, y, h, wn, mean, invstd, gamma, nchunks):
+    """Gradient of :func:`weighted_bn_relu_forward`: (dh (R, C) float32, dgamma (C,), dbeta (C,)).
+
+    ``dh_i = gamma invstd (G_i - wn_i (sum G + xhat_i sum G xhat))`` with ``G = gy [y > 0]`` and
+    ``xhat = (h - mean) invstd``: the batch-norm gradient of the population the rows stand for.
+    """
+    R, C = h.shape
+    sb = np.zeros((nchunks, C))
+    sg = np.zeros((nchunks, C))
+    mean32 = mean.astype(np.float32)
+    inv32 = invstd.astype(np.float32)
+    for k in numba.prange(nchunks):
+        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
+            for c in range(C):
+                if y[i, c] > 0:
+                    g = np.float64(gy[i, c])
+                    sb[k, c] += g
+                    sg[k, c] += g * np.float64((h[i, c] - mean32[c]) * inv32[c])
+    dbeta = sb.sum(axis=0)
+    dgamma = sg.sum(axis=0)
+    a = (gamma.astype(np.float64) * invstd).astype(np.float32)
+    db32 = dbeta.astype(np.float32)
+    dg32 = dgamma.astype(np.float32)
+    dh = np.empty_like(h)
+    for k in numba.prange(nchunks):
+        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
+            w = wn[i]
+            for c in range(C):
+                g = gy[i, c] if y[i, c] > 0 else np.float32(0.0)
+                xhat = (h[i, c] - mean32[c]) * inv32[c]
+                dh[i, c] = a[c] * (g - w * (db32[c] + xhat * dg32[c]))
+    return dh, dgamma, dbeta
+
+
+def parallel_chunks(threads: int) -> int:
+    """Use ``threads`` (capped by Numba's pool) for the parallel kernels; returns the row chunks
+    (four per thread) to pass them."""
+    n = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(n)
+    return 4 * n
