@@ -1,7 +1,8 @@
-"""Speed and memory of the SASA detector (sonardet.detect.sasa): training step, inference, STUDY epoch cost.
+"""Speed and memory of the SASA detector (sonardet.detect.sasa): training step, inference, epoch cost.
 
-For each configuration (``DEFAULTS`` = the 2-core CPU budget, ``STUDY`` = the study's network with
-batch 8 and 16384 points) a fresh subprocess (so that peak memory is its own):
+For each configuration (``DEFAULTS`` = the 2-core CPU budget, ``STUDY`` = the study's network: batch
+8, 16384 raw points, reference widths and nsample) and each device (CPU always, CUDA when available;
+``--device`` picks one) a fresh subprocess (so that peak memory is its own):
 
 1. prepares the scenes (ground filter, local frame) and reports the seconds per scene;
 2. times ``--steps`` training steps (forward, loss, backward, AdamW step; augmentation included)
@@ -15,8 +16,16 @@ batch 8 and 16384 points) a fresh subprocess (so that peak memory is its own):
 Scenes: ``results/scenes/*.npz`` listed in ``results/splits/train.txt`` (the first ``--n-scenes``);
 with ``--synthetic`` (or when none exist) synthetic scenes of the same size are made on the fly.
 
+``--padded`` runs the grouped MLPs on the padded ball-query slots (``compact_groups: false``, the
+earlier computation, bit for bit) instead of the distinct neighbours, to compare the two.
+
+The step time is the median of the timed steps; on a shared machine compare rows taken at the same
+time (the machine's load average is printed). A STUDY step on CPU takes seconds to tens of seconds:
+``--steps 2`` keeps the run to a few minutes.
+
 Usage: ``python benchmarks/sasa.py [--threads 2] [--steps 5] [--configs DEFAULTS,STUDY] [--device cpu]
-[--json out.json]``. Timings are machine-dependent: compare rows taken on the same machine only.
+[--padded] [--synthetic] [--json out.json]``. Timings are machine-dependent: compare rows taken on the
+same machine only.
 """
 
 from __future__ import annotations
@@ -25,6 +34,7 @@ import argparse
 import json
 import math
 import multiprocessing as mp
+import os
 import platform
 import tempfile
 import time
@@ -142,6 +152,15 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
     })
 
 
+def _devices(device: str | None) -> list[str]:
+    """The devices to time: the one asked for, else CPU and (when available) CUDA."""
+    if device is not None:
+        return [device]
+    import torch
+
+    return ["cpu", "cuda"] if torch.cuda.is_available() else ["cpu"]
+
+
 def main(argv=None) -> list[dict]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--threads", type=int, default=2)
@@ -150,33 +169,39 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--n-scenes", type=int, default=8, help="scenes loaded (>= the STUDY batch size)")
     ap.add_argument("--train-scenes", type=int, default=80, help="training-set size for the epoch estimate")
     ap.add_argument("--configs", default="DEFAULTS,STUDY")
-    ap.add_argument("--device", default=None, help="cpu, cuda (default: cuda if available)")
+    ap.add_argument("--device", default=None, help="cpu or cuda (default: cpu, and cuda too if available)")
+    ap.add_argument("--padded", action="store_true", help="grouped MLPs on the padded slots (compact_groups false)")
     ap.add_argument("--synthetic", action="store_true", help="use synthetic scenes even if results/ has some")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     rows = []
+    overrides = {"progress": False, "compact_groups": not args.padded}
     with tempfile.TemporaryDirectory() as tmp:
         paths = [str(p) for p in _scene_paths(args.n_scenes, args.synthetic, Path(tmp))]
         ctx = mp.get_context("spawn")
-        for name in args.configs.split(","):
-            q = ctx.Queue()
-            proc = ctx.Process(target=_worker, args=(name, {"progress": False}, paths, args.steps, args.warmup,
-                                                     args.threads, args.device, args.train_scenes, q))
-            proc.start()
-            row = q.get()
-            proc.join()
-            rows.append(row)
+        for device in _devices(args.device):
+            for name in args.configs.split(","):
+                q = ctx.Queue()
+                proc = ctx.Process(target=_worker, args=(name, overrides, paths, args.steps, args.warmup,
+                                                         args.threads, device, args.train_scenes, q))
+                proc.start()
+                row = q.get()
+                proc.join()
+                row["load_avg_1min"] = os.getloadavg()[0]
+                rows.append(row)
     cpu = platform.processor() or platform.machine()
     print(f"machine: {platform.node()} {cpu}, torch threads {args.threads}, scenes: {len(paths)} "
-          f"({'synthetic' if 'syn' in Path(paths[0]).stem else 'results/scenes'})")
+          f"({'synthetic' if 'syn' in Path(paths[0]).stem else 'results/scenes'}), grouped MLPs on "
+          f"{'padded slots' if args.padded else 'distinct neighbours'}, load average {os.getloadavg()[0]:.1f}")
     head = ("config", "device", "batch", "points", "params", "s/step", "s/scene(train)", "s/scene(infer)",
-            "prep s/scene", f"epoch s ({args.train_scenes} sc.)", "schedule h", "peak RSS MB")
+            "prep s/scene", f"epoch s ({args.train_scenes} sc.)", "schedule h", "peak RSS MB", "load")
     print(" | ".join(head))
     for r in rows:
         print(" | ".join([r["config"], r["device"], str(r["batch_size"]), str(r["n_points"]), f"{r['n_params']:,}",
                           f"{r['train_s_per_step']:.2f}", f"{r['train_s_per_scene']:.2f}", f"{r['infer_s_per_scene']:.2f}",
                           f"{r['prepare_s_per_scene']:.2f}", f"{r['epoch_s_est']:.0f}",
-                          f"{r['schedule_s_est'] / 3600:.2f} ({r['epochs']} ep.)", f"{r['peak_rss_mb']:.0f}"]))
+                          f"{r['schedule_s_est'] / 3600:.2f} ({r['epochs']} ep.)", f"{r['peak_rss_mb']:.0f}",
+                          f"{r['load_avg_1min']:.1f}"]))
     if args.json:
         Path(args.json).write_text(json.dumps({"machine": platform.node(), "rows": rows}, indent=1))
     return rows

@@ -1,7 +1,9 @@
-"""Timings of the pure-PyTorch SASA point operators (sonardet.detect.sasa.ops).
+"""Timings of the SASA point operators (sonardet.detect.sasa.ops).
 
 Runs on CPU with 2 threads (the default experiment's budget) and, when CUDA is available, on the
-GPU too. Prints a table; ``--json PATH`` also writes the rows for the report.
+GPU too. On CPU, FPS / S-FPS and the ball query are timed on the compiled kernels (``[compiled]``, the
+default there) and on the PyTorch paths (``[torch]`` loop; ``tiled`` / ``dense`` ball query), which
+give the same indices. Prints a table; ``--json PATH`` also writes the rows for the report.
 
 Workload: a synthetic seabed-like cloud (x, y uniform over 40 m x 40 m, z a gentle surface with
 a few 1-2 m mounds), the SASA sampling chain 16384 -> 4096 -> 1024 -> 512 points, the ball
@@ -22,6 +24,7 @@ import math
 import multiprocessing as mp
 import resource
 import time
+from contextlib import contextmanager
 
 import torch
 
@@ -38,6 +41,20 @@ from sonardet.detect.sasa.ops import (
 
 RADII = [0.4, 0.8, 1.2]
 NSAMPLES = [16, 16, 32]
+
+
+@contextmanager
+def fps_path(path: str):
+    """FPS on the compiled kernel (``"compiled"``) or on the PyTorch loop (``"torch"``)."""
+    from sonardet.detect.sasa.ops import sampling
+
+    saved = sampling.kernels
+    if path == "torch":
+        sampling.kernels = None
+    try:
+        yield
+    finally:
+        sampling.kernels = saved
 
 
 def seabed_cloud(batch: int, n: int, seed: int = 0) -> torch.Tensor:
@@ -123,16 +140,21 @@ def run(device: torch.device, batches: list[int], repeat: int, rows: list[dict])
         xyz0 = seabed_cloud(batch, 16384).to(device)
         chain = [(16384, 4096), (4096, 1024), (1024, 512)]
         xyz = xyz0
+        paths = ["compiled", "torch"] if device.type == "cpu" else ["torch"]
         for n, m in chain:
             xyz = xyz[:, :n].contiguous()
             logits = torch.randn(batch, n, device=device)
-            add("D-FPS", f"B={batch} {n}->{m}", timeit(lambda: furthest_point_sample(xyz, m), device, repeat))
-            add("S-FPS (gamma=1)", f"B={batch} {n}->{m}",
-                timeit(lambda: semantic_furthest_point_sample(xyz, logits, m, 1.0), device, repeat))
+            for path in paths:
+                with fps_path(path):
+                    add(f"D-FPS [{path}]", f"B={batch} {n}->{m}",
+                        timeit(lambda: furthest_point_sample(xyz, m), device, repeat))
+                    add(f"S-FPS (gamma=1) [{path}]", f"B={batch} {n}->{m}",
+                        timeit(lambda: semantic_furthest_point_sample(xyz, logits, m, 1.0), device, repeat))
         xyz = xyz0
         q = index_points(xyz, furthest_point_sample(xyz, 4096))
         # dense on CPU only at batch 2 (it is ~15x slower than tiled there; it is the CUDA default)
-        methods = (["tiled", "dense"] if batch <= 2 else ["tiled"]) if device.type == "cpu" else ["dense", "tiled"]
+        methods = (["compiled", "tiled", "dense"] if batch <= 2 else ["compiled", "tiled"]) if device.type == "cpu" \
+            else ["dense", "tiled"]
         for method in methods:
             add(f"ball_query r=1.2 K=32 [{method}]", f"B={batch} N=16384 M=4096",
                 timeit(lambda: ball_query(1.2, 32, xyz, q, method=method), device, repeat))
@@ -187,7 +209,7 @@ def main() -> None:
         ctx = mp.get_context("spawn")
         for batch in batches:
             for shells in (False, True):
-                for method in ("tiled", "dense"):
+                for method in ("compiled", "tiled", "dense"):
                     with ctx.Pool(1) as pool:
                         mb = pool.map(_mem_probe, [(batch, 16384, 4096, shells, method, args.threads)])[0]
                     op = "ball_query_shells x3" if shells else "ball_query r=1.2 K=32"

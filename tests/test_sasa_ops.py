@@ -1,6 +1,8 @@
-"""Tests of the pure-PyTorch SASA point operators against slow, obviously-correct references.
+"""Tests of the SASA point operators against slow, obviously-correct references.
 
-The FPS reference simulates the reference CUDA kernel thread by thread (strided scans and the
+FPS and the ball query run on CPU through compiled kernels (Numba) by default; every equality test
+runs on the compiled path and on the PyTorch paths (the CUDA and fallback implementations). The FPS
+reference simulates the reference CUDA kernel thread by thread (strided scans and the
 shared-memory tree reduction), so tie-breaking is checked, not just the distance rule. The ball
 query reference is the kernel's per-query loop. The rotated IoU reference is a scalar numpy
 Sutherland-Hodgman clipper, itself checked against Monte Carlo areas.
@@ -37,11 +39,16 @@ from sonardet.detect.sasa.ops import (
 torch.set_num_threads(2)
 
 
-@pytest.fixture(params=["plain", "two_level"])
+@pytest.fixture(params=["compiled", "plain", "two_level"])
 def argmax_mode(request, monkeypatch):
-    """Run FPS tests with both argmax paths (the two-level one is used for large B * N)."""
+    """Run FPS tests on the compiled kernel and on both argmax paths of the PyTorch loop (the
+    two-level one is used for large B * N)."""
     from sonardet.detect.sasa.ops import sampling
 
+    if request.param == "compiled":
+        assert sampling.kernels is not None, "the compiled kernels (Numba) should be available"
+    else:
+        monkeypatch.setattr(sampling, "kernels", None)  # the PyTorch loop, as on CUDA
     monkeypatch.setattr(sampling, "_HIER_MIN", 0 if request.param == "two_level" else 1 << 62)
     return request.param
 
@@ -271,10 +278,42 @@ def test_sfps_prefers_high_score_points():
     assert fg[d_idx].float().mean() < 0.5
 
 
+def _torch_fps(monkeypatch, fn, *args):
+    """``fn(*args)`` through the PyTorch loop (the compiled kernel switched off)."""
+    from sonardet.detect.sasa.ops import sampling
+
+    with monkeypatch.context() as m:
+        m.setattr(sampling, "kernels", None)
+        return fn(*args)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_compiled_fps_equals_torch_loop_on_large_clouds(monkeypatch, dtype):
+    # Large enough for the block skipping to matter (many blocks, most of them skipped late on):
+    # clustered sonar-like clouds with flat patches (near-ties) and an offset far from the origin.
+    g = torch.Generator().manual_seed(11)
+    xy = torch.rand(2, 6000, 2, generator=g, dtype=dtype) * 40.0
+    z = (xy[..., 0] > 20).to(dtype) * 1.5 + 0.01 * torch.randn(2, 6000, generator=g, dtype=dtype)
+    xyz = torch.cat([xy, z[..., None]], -1) + torch.tensor([300.0, -200.0, -11.5], dtype=dtype)
+    xyz[:, 100:200] = xyz[:, 100:101]  # duplicates
+    logits = torch.randn(2, 6000, generator=g, dtype=dtype) * 3
+    for m in (1, 1500, 6000, 6100):
+        assert torch.equal(furthest_point_sample(xyz, m), _torch_fps(monkeypatch, furthest_point_sample, xyz, m))
+    for gamma in (1.0, 0.0):
+        got = semantic_furthest_point_sample(xyz, logits, 1000, gamma)
+        assert torch.equal(got, _torch_fps(monkeypatch, semantic_furthest_point_sample, xyz, logits, 1000, gamma))
+
+
+def test_fps_nonfinite_falls_back_to_torch_loop(monkeypatch):
+    xyz = torch.rand(1, 200, 3)
+    xyz[0, 50, 1] = float("inf")
+    assert torch.equal(furthest_point_sample(xyz, 40), _torch_fps(monkeypatch, furthest_point_sample, xyz, 40))
+
+
 # ------------------------------------------------------------------------------------------------
 # ball query
 # ------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("method", ["tiled", "dense"])
+@pytest.mark.parametrize("method", ["compiled", "tiled", "dense"])
 def test_ball_query_matches_reference_loop(method):
     rng = np.random.default_rng(7)
     xyz = rng.uniform(0, 4, size=(2, 300, 3)).astype(np.float32)
@@ -293,20 +332,21 @@ def test_ball_query_matches_reference_loop(method):
     assert (rc == 0).any() and (rc == 12).any() and ((rc > 0) & (rc < 12)).any()
 
 
-def test_ball_query_boundaries_padding_and_empty():
+@pytest.mark.parametrize("method", ["auto", "tiled", "dense"])
+def test_ball_query_boundaries_padding_and_empty(method):
     # points on a line at integer distances from the query: d < r strict, r_in <= d inclusive
     xyz = torch.tensor([[[3.0, 0, 0], [1.0, 0, 0], [0.0, 0, 0], [2.0, 0, 0], [1.0, 0, 0]]])
     q = torch.tensor([[[0.0, 0, 0], [50.0, 50, 50]]])
-    cnt, idx = ball_query(2.0, 5, xyz, q, return_count=True)
+    cnt, idx = ball_query(2.0, 5, xyz, q, return_count=True, method=method)
     assert cnt.tolist() == [[3, 0]]
     assert idx[0, 0].tolist() == [1, 2, 4, 1, 2]  # index order, then cyclic repetition
     assert idx[0, 1].tolist() == [0] * 5  # no neighbour: zeros, count 0
-    cnt, idx = ball_query_dilated(1.0, 3.0, 4, xyz, q, return_count=True)
+    cnt, idx = ball_query_dilated(1.0, 3.0, 4, xyz, q, return_count=True, method=method)
     assert cnt.tolist() == [[3, 0]] and idx[0, 0].tolist() == [1, 3, 4, 1]
-    one = ball_query(1.5, 4, xyz, q[:, :1])  # single hit -> "fill with the first found index"
+    one = ball_query(1.5, 4, xyz, q[:, :1], method=method)  # single hit -> "fill with the first found index"
     assert one[0, 0].tolist() == [1, 2, 4, 1]
     # a single point, duplicates, more samples than points
-    cnt, idx = ball_query(0.1, 6, torch.zeros(1, 1, 3), torch.zeros(1, 3, 3), return_count=True)
+    cnt, idx = ball_query(0.1, 6, torch.zeros(1, 1, 3), torch.zeros(1, 3, 3), return_count=True, method=method)
     assert cnt.tolist() == [[1, 1, 1]] and idx.unique().tolist() == [0]
 
 
@@ -318,8 +358,10 @@ def test_ball_query_shells_equal_individual_queries():
     for dilated in (False, True):
         shells = ball_query_shells(radii, ns, xyz, q, dilated=dilated, chunk_size=20)
         dense = ball_query_shells(radii, ns, xyz, q, dilated=dilated, method="dense", max_pairs=5000)
-        tiny = ball_query_shells(radii, ns, xyz, q, dilated=dilated, chunk_size=64, max_pairs=700)
+        tiny = ball_query_shells(radii, ns, xyz, q, dilated=dilated, chunk_size=64, max_pairs=700, method="tiled")
         assert all(torch.equal(c1, c2) and torch.equal(i1, i2) for (c1, i1), (c2, i2) in zip(tiny, dense))
+        compiled = ball_query_shells(radii, ns, xyz, q, dilated=dilated, method="compiled")
+        assert all(torch.equal(c1, c2) and torch.equal(i1, i2) for (c1, i1), (c2, i2) in zip(compiled, dense))
         prev = 0.0
         for (cnt, idx), (dc, di), r, n in zip(shells, dense, radii, ns):
             if dilated:
@@ -329,6 +371,37 @@ def test_ball_query_shells_equal_individual_queries():
                 c1, i1 = ball_query(r, n, xyz, q, return_count=True)
             assert torch.equal(cnt, c1) and torch.equal(idx, i1)
             assert torch.equal(cnt, dc) and torch.equal(idx, di)
+
+
+@pytest.mark.parametrize("dilated", [False, True])
+def test_compiled_ball_query_equals_tiled_on_large_clouds(dilated):
+    # the SA1 / vote shapes: many centres, hits both far below and above nsample, an offset origin
+    g = torch.Generator().manual_seed(8)
+    xyz = torch.rand(2, 8000, 3, generator=g) * torch.tensor([40.0, 40.0, 2.0]) + torch.tensor([5e3, -3e3, -11.5])
+    xyz[:, 10:40] = xyz[:, 10:11]  # duplicates
+    q = index_points(xyz, furthest_point_sample(xyz, 1000))
+    q = torch.cat([q, q[:, :50] + 0.37, torch.full((2, 3, 3), 9e3)], 1)  # off-sample and far-away centres
+    radii, ns = [0.3, 0.6, 1.0], [8, 16, 16]
+    a = ball_query_shells(radii, ns, xyz, q, dilated=dilated, method="compiled")
+    b = ball_query_shells(radii, ns, xyz, q, dilated=dilated, method="tiled")
+    assert all(torch.equal(c1, c2) and torch.equal(i1, i2) for (c1, i1), (c2, i2) in zip(a, b))
+    assert any(bool((c == 0).any()) for c, _ in a) and any(bool((c == n).any()) for (c, _), n in zip(a, ns))
+
+
+def test_compiled_ball_query_sparse_cloud_over_large_extent():
+    # tiny radius over a huge extent: the grid is capped at a few columns per point, still exact
+    g = torch.Generator().manual_seed(9)
+    xyz = torch.rand(1, 500, 3, generator=g, dtype=torch.float64) * 1e5
+    xyz[0, 1:6] = xyz[0, 0] + 0.01 * torch.arange(1, 6, dtype=torch.float64)[:, None]
+    q = xyz[:, :20].clone()
+    a = ball_query_shells([0.02, 0.05], [3, 4], xyz, q, method="compiled")
+    b = ball_query_shells([0.02, 0.05], [3, 4], xyz, q, method="tiled")
+    assert all(torch.equal(c1, c2) and torch.equal(i1, i2) for (c1, i1), (c2, i2) in zip(a, b))
+    assert int(a[1][0][0, 0]) == 3  # itself and the points at 0.017 and 0.035 m
+    with pytest.raises(ValueError):
+        bad = xyz.clone()
+        bad[0, 3, 0] = float("nan")
+        ball_query(0.1, 4, bad, q, method="compiled")
 
 
 def test_ball_query_nonfinite_points_fall_back_without_pruning():

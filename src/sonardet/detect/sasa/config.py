@@ -241,6 +241,7 @@ DEFAULTS: dict = {
     # ---- runtime ----
     "num_threads": None,                     # torch CPU threads (None: leave torch's setting)
     "sampling_threads": 1,                   # CPU threads for FPS / ball query (0: same as num_threads)
+    "compact_groups": True,                  # grouped MLPs on distinct hits only (False: padded, bitwise as before)
     "progress": True,                        # tqdm progress bar
 }
 
@@ -296,8 +297,8 @@ STUDY.update({
 PRESETS = {"default": DEFAULTS, "study": STUDY}
 
 #: Keys that do not change what is learned (not compared when resuming or loading a model).
-RUNTIME_KEYS = frozenset({"num_threads", "sampling_threads", "progress", "val_every_epochs", "early_stop_patience",
-                          "early_stop_min_delta"})
+RUNTIME_KEYS = frozenset({"num_threads", "sampling_threads", "compact_groups", "progress", "val_every_epochs",
+                          "early_stop_patience", "early_stop_min_delta"})
 #: Keys used only after the network (may differ between training and inference).
 INFERENCE_KEYS = frozenset({"score_thresh", "nms_mode", "nms_iou", "nms_pre_max", "nms_post_max"})
 #: Keys that define the network and its input: a model is only used with the values it was trained with.

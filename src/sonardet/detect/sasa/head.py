@@ -37,7 +37,8 @@ class VoteHead(nn.Module):
         self.register_buffer("vote_range", torch.tensor(params["vote_range_m"], dtype=torch.float32), persistent=False)
         self.radii = [float(r) for r in params["vote_radii_m"]]
         self.nsamples = [int(s) for s in params["vote_nsamples"]]
-        self.vote_mlps = nn.ModuleList(GroupedMLP(in_ch, widths) for widths in params["vote_mlps"])
+        compact = params.get("compact_groups", True)
+        self.vote_mlps = nn.ModuleList(GroupedMLP(in_ch, widths, compact) for widths in params["vote_mlps"])
         out = sum(m.out_ch for m in self.vote_mlps)
         self.shared_fc, c = shared_mlp1d(out, params["head_shared_fc"])
         cls_body, cc = shared_mlp1d(c, params["head_cls_fc"])

@@ -1,8 +1,11 @@
-"""Point operators of the SASA detector in pure, vectorised PyTorch (CPU and CUDA, no extensions).
+"""Point operators of the SASA detector in vectorised PyTorch (CPU and CUDA), FPS and the ball query
+with compiled CPU kernels.
 
 * :mod:`.sampling`: D-FPS, weighted FPS and S-FPS (reference ``furthest_point_sample*`` kernels).
 * :mod:`.grouping`: ball query (plain, dilated, multi-radius), gather/grouping, QueryAndGroup.
 * :mod:`.rotated_iou`: exact rotated BEV / 3-D IoU and greedy rotated-BEV NMS.
+* :mod:`.kernels`: Numba kernels that FPS and the ball query use on CPU (same indices as the
+  PyTorch paths, which remain for CUDA and as the fallback).
 
 Every function follows the device of its input tensors. Index outputs are int64.
 """

@@ -10,9 +10,12 @@ Semantics follow the SASA reference (blakechen97/SASA, ``pcdet/ops/pointnet2/poi
   cyclically (slot j holds hit ``j mod idx_cnt``; with one hit that is "fill with the first hit");
 * an empty ball gives ``idx_cnt = 0`` and all indices 0 (the reference zero-fills its output).
 
-Two execution strategies give identical results (tested):
+Three execution strategies give identical results (tested):
 
-* ``"tiled"`` (default on CPU): per cloud, queries are grouped into spatial tiles (x strips, then y
+* ``"compiled"`` (default on CPU when the coordinates are finite float32/float64 and Numba is
+  available): the grid kernel of :mod:`.kernels` (points binned into columns at least one radius wide,
+  a query tests the 3 x 3 columns around it, hits sorted by index);
+* ``"tiled"`` (the CPU fallback): per cloud, queries are grouped into spatial tiles (x strips, then y
   chunks of ``chunk_size`` queries); only the points inside the tile's bounding box grown by the
   radius (plus a rounding margin, so the candidate set is a strict superset of every ball) are
   tested. Work drops roughly by the ratio of the grown tile area to the cloud area.
@@ -30,6 +33,11 @@ from typing import Sequence
 
 import torch
 from torch import nn
+
+try:  # the compiled CPU kernels are optional: without Numba the PyTorch strategies run
+    from . import kernels
+except ImportError:  # pragma: no cover - Numba is a dependency
+    kernels = None
 
 __all__ = [
     "ball_query",
@@ -267,7 +275,8 @@ def ball_query_shells(
         new_xyz: (B, M, 3) query centres (same dtype and device).
         dilated: shells instead of balls (SASA/3DSSD ``DILATED_RADIUS_GROUP``).
         chunk_size: queries per distance block (bounds memory, see module docstring).
-        method: ``"tiled"``, ``"dense"`` or ``"auto"`` (tiled on CPU, dense elsewhere).
+        method: ``"compiled"``, ``"tiled"``, ``"dense"`` or ``"auto"`` (compiled on CPU where it
+            applies, else tiled; dense elsewhere).
         max_pairs: upper bound on query-point pairs per distance block.
 
     Returns:
@@ -310,11 +319,44 @@ def _ball_query_impl(shells, xyz, new_xyz, chunk_size, method, max_pairs):
         ]
     if method == "auto":
         method = "tiled" if xyz.device.type == "cpu" else "dense"
+        if method == "tiled" and _compiled_ok(xyz, new_xyz):
+            method = "compiled"
+    if method == "compiled":
+        if not _compiled_ok(xyz, new_xyz):
+            raise ValueError("method 'compiled' needs finite float32/float64 CPU tensors and Numba")
+        return _ball_query_compiled(xyz, new_xyz, prepared)
     if method == "tiled":
         return _ball_query_tiled(xyz, new_xyz, prepared, chunk_size, max_pairs)
     if method == "dense":
         return _ball_query_dense(xyz, new_xyz, prepared, chunk_size, max_pairs)
-    raise ValueError(f"method must be 'auto', 'tiled' or 'dense', got {method!r}")
+    raise ValueError(f"method must be 'auto', 'compiled', 'tiled' or 'dense', got {method!r}")
+
+
+def _compiled_ok(xyz: torch.Tensor, new_xyz: torch.Tensor) -> bool:
+    """Whether the compiled kernel applies: CPU, float32/float64, finite coordinates, Numba available."""
+    if kernels is None or xyz.device.type != "cpu" or xyz.dtype not in (torch.float32, torch.float64):
+        return False
+    return bool(torch.isfinite(xyz).all()) and bool(torch.isfinite(new_xyz).all())
+
+
+def _ball_query_compiled(xyz, new_xyz, shells):
+    """The shells through :func:`.kernels.ball_query_kernel`; [(idx_cnt (B, M), idx (B, M, ns))] per shell."""
+    dt = xyz.dtype
+    r_in2 = torch.stack([torch.tensor(-math.inf, dtype=dt) if s[0] is None else s[0].cpu() for s in shells])
+    r_out2 = torch.stack([s[1].cpu() for s in shells])
+    ns = torch.tensor([s[2] for s in shells], dtype=torch.long)
+    x = xyz.contiguous()
+    scale = float(torch.maximum(x.abs().max(), new_xyz.abs().max()))
+    span = x[..., :2].amax(dim=1) - x[..., :2].amin(dim=1)  # (B, 2) xy extent per cloud
+    cell = kernels.grid_cell(max(s[3] for s in shells), scale, x.shape[1], float(span.max()))
+    idx, cnt = kernels.ball_query_kernel(x.numpy(), new_xyz.contiguous().numpy(), r_in2.numpy(), r_out2.numpy(),
+                                         ns.numpy(), cell)
+    idx, cnt = torch.from_numpy(idx), torch.from_numpy(cnt)
+    out, off = [], 0
+    for k, (_, _, n, _) in enumerate(shells):
+        out.append((cnt[:, :, k].contiguous(), idx[:, :, off:off + n].contiguous()))
+        off += n
+    return out
 
 
 @torch.no_grad()
@@ -339,7 +381,7 @@ def ball_query(
         new_xyz: (B, M, 3) centres.
         chunk_size: queries per distance block (memory bound, see module docstring).
         return_count: also return the hit counts.
-        method: ``"auto"``, ``"tiled"`` or ``"dense"`` (identical results).
+        method: ``"auto"``, ``"compiled"``, ``"tiled"`` or ``"dense"`` (identical results).
 
     Returns:
         ``idx`` (B, M, K) int64 indices into N, or ``(idx_cnt, idx)`` with ``idx_cnt`` (B, M) int64

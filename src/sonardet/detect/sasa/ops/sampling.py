@@ -13,8 +13,11 @@ functions replicate the CUDA kernels of the SASA reference (blakechen97/SASA,
 * here the points are permuted once into exactly that preference order, so that ``torch.argmax``
   (which returns the first maximal index) reproduces the reference choice with no per-step cost.
 
-Everything runs on the device of the input (CPU or CUDA); one Python step per sampled point,
-vectorised over batch and points (O(npoint * B * N) work, O(B * N) memory).
+On CPU, with finite coordinates and weights in float32/float64, the compiled block algorithm of
+:mod:`.kernels` does the sampling (same indices, same float arithmetic; it skips the blocks of points
+that the last pick cannot reach). Otherwise (CUDA, non-finite values, Numba missing) the PyTorch loop
+below runs on the device of the input: one Python step per sampled point, vectorised over batch and
+points (O(npoint * B * N) work, O(B * N) memory). Both give the same indices (tested).
 """
 
 from __future__ import annotations
@@ -22,7 +25,13 @@ from __future__ import annotations
 import math
 from functools import lru_cache
 
+import numpy as np
 import torch
+
+try:  # the compiled CPU kernels are optional: without Numba the PyTorch loop runs everywhere
+    from . import kernels
+except ImportError:  # pragma: no cover - Numba is a dependency
+    kernels = None
 
 __all__ = [
     "furthest_point_sample",
@@ -84,7 +93,7 @@ def _check_xyz(xyz: torch.Tensor) -> None:
 
 
 def _fps_loop(xyz: torch.Tensor, npoint: int, weights: torch.Tensor | None) -> torch.Tensor:
-    """Shared D-FPS / weighted-FPS loop; see the public functions for the contract."""
+    """Shared D-FPS / weighted-FPS entry; see the public functions for the contract."""
     _check_xyz(xyz)
     if npoint < 0:
         raise ValueError(f"npoint must be >= 0, got {npoint}")
@@ -92,9 +101,45 @@ def _fps_loop(xyz: torch.Tensor, npoint: int, weights: torch.Tensor | None) -> t
     device = xyz.device
     if npoint == 0:
         return torch.zeros((B, 0), dtype=torch.long, device=device)
-
     order = _preference_order(N, device)
     xp = xyz.detach().index_select(1, order)  # (B, N, 3), points in preference order
+    wp = None if weights is None else weights.detach().to(xp.dtype).index_select(1, order)
+    n_iter = min(npoint, N)
+    if _compiled_ok(xp, wp):
+        picked = _fps_compiled(xp, wp, n_iter)
+    else:
+        picked = _fps_torch(xp, wp, n_iter)
+    idx = order[picked]  # back to original indices
+    if npoint > N:
+        # Deviation (documented): cyclic repetition of the N-long sequence, see furthest_point_sample.
+        idx = idx[:, torch.arange(npoint, device=device) % N]
+    return idx
+
+
+def _compiled_ok(xp: torch.Tensor, wp: torch.Tensor | None) -> bool:
+    """Whether the compiled kernel applies: CPU, float32/float64, finite values, Numba available."""
+    if kernels is None or xp.device.type != "cpu" or xp.dtype not in (torch.float32, torch.float64):
+        return False
+    return bool(torch.isfinite(xp).all()) and (wp is None or bool(torch.isfinite(wp).all()))
+
+
+def _fps_compiled(xp: torch.Tensor, wp: torch.Tensor | None, n_iter: int) -> torch.Tensor:
+    """Preference positions (B, n_iter) picked by the compiled block FPS (:func:`.kernels.fps_kernel`)."""
+    x = xp.contiguous().numpy()
+    if wp is None:
+        w = np.zeros((1, 1), x.dtype)
+        out = kernels.fps_kernel(x, w, w, n_iter, False)
+    else:
+        # The score factor exactly as the PyTorch loop computes it (clamp in the dtype of xyz).
+        out = kernels.fps_kernel(x, wp.contiguous().numpy(), wp.clamp_min(_WEIGHT_MIN).contiguous().numpy(),
+                                 n_iter, True)
+    return torch.from_numpy(out)
+
+
+def _fps_torch(xp: torch.Tensor, wp: torch.Tensor | None, n_iter: int) -> torch.Tensor:
+    """Preference positions (B, n_iter) picked by the vectorised PyTorch loop (any device)."""
+    B, N, _ = xp.shape
+    device = xp.device
     flat = xp.reshape(B * N, 3)
     base = torch.arange(B, device=device) * N
 
@@ -107,7 +152,6 @@ def _fps_loop(xyz: torch.Tensor, npoint: int, weights: torch.Tensor | None) -> t
     # Structure-of-arrays copies: each coordinate row is contiguous for the per-step update.
     x, y, z = (torch.nn.functional.pad(xp[..., i], (0, pad), value=math.inf) for i in range(3))
 
-    n_iter = min(npoint, N)
     picked = torch.empty((B, n_iter), dtype=torch.long, device=device)
     temp = torch.full((B, Np), _TEMP_INIT, dtype=xp.dtype, device=device)
     temp[:, N:] = -1.0
@@ -122,13 +166,12 @@ def _fps_loop(xyz: torch.Tensor, npoint: int, weights: torch.Tensor | None) -> t
         blk = g.amax(dim=2).argmax(dim=1)
         return blk * _GROUP + g[rows, blk].argmax(dim=1)
 
-    if weights is None:
+    if wp is None:
         # Reference: idxs[0] = 0; position 0 of the permuted cloud is original index 0.
         old = torch.zeros(B, dtype=torch.long, device=device)
         w_clamped = None
         score = temp
     else:
-        wp = weights.detach().to(xp.dtype).index_select(1, order)
         # Reference round j == 0: the point of largest (unclamped) weight, same tie rule.
         old = wp.argmax(dim=1)
         w_clamped = torch.nn.functional.pad(wp.clamp_min(_WEIGHT_MIN), (0, pad), value=1.0)
@@ -151,12 +194,7 @@ def _fps_loop(xyz: torch.Tensor, npoint: int, weights: torch.Tensor | None) -> t
             torch.mul(temp, w_clamped, out=score)
         old = first_argmax(score)  # first maximum == reference tie-break in this order
         picked[:, j] = old
-
-    idx = order[picked]  # back to original indices
-    if npoint > N:
-        # Deviation (documented): cyclic repetition of the N-long sequence, see furthest_point_sample.
-        idx = idx[:, torch.arange(npoint, device=device) % N]
-    return idx
+    return picked
 
 
 @torch.no_grad()

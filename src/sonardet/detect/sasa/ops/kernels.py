@@ -1,0 +1,396 @@
+"""Compiled CPU kernels (Numba) for furthest point sampling and the ball query.
+
+They compute exactly what the pure-PyTorch operators of :mod:`.sampling` and :mod:`.grouping` compute
+(same indices, same float arithmetic: every distance is ``(x - x1)^2 + (y - y1)^2 + (z - z1)^2`` in
+the dtype of the coordinates, one rounding per operation, no fused multiply-add), with far less work:
+
+* **FPS** (:func:`fps_kernel`): the points (already in the reference kernel's tie-break preference
+  order, see :mod:`.sampling`) are grouped into spatial blocks of ``FPS_BLOCK`` points (Morton order of
+  a coarse grid). Each block keeps its bounding box, the largest running distance of its points and
+  its best score (largest ``temp * w``, ties to the smallest preference position). After a pick, a
+  block whose bounding box is farther from the picked point than its largest running distance (with a
+  relative margin far above the rounding error) cannot change and is skipped; the next pick is the
+  best of the block bests. Same result as a full scan, at a fraction of the work late in the sampling.
+* **Ball query** (:func:`ball_query_kernel`): points are binned into vertical columns of a 2-D grid
+  whose cells are at least the largest radius (with a rounding margin); a query tests only the points
+  of its 3 x 3 columns, sorts its hits by index and keeps the first ``nsample`` of every shell.
+
+* **Weighted batch norm + ReLU** (:func:`weighted_bn_relu_forward` / ``_backward``): the compact
+  grouped MLP's normalisation fused into two passes forward and two backward (float64 statistics),
+  parallel over row chunks with torch's thread count.
+
+Inputs must be finite (callers fall back to the PyTorch operators otherwise). Compiled on first use
+and cached on disk (``cache=True``); FPS and the ball query are single-threaded.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["FPS_BLOCK", "fps_kernel", "ball_query_kernel", "grid_cell", "weighted_bn_relu_forward",
+           "weighted_bn_relu_backward", "parallel_chunks"]
+
+#: Points per FPS block (bounding-box test granularity).
+FPS_BLOCK = 64
+#: Relative margin of the block skip test: a block is skipped only if its box is farther than
+#: ``maxtemp / (1 - margin)``; float rounding of a squared distance is below 1e-6 relative.
+_SKIP_MARGIN = 1e-5
+#: Initial running distance of the reference kernel (``temp.fill_(1e10)``).
+_TEMP_INIT = 1e10
+
+_JIT = dict(cache=True, nogil=True)
+
+
+@numba.njit(**_JIT)
+def _morton_order(x, y, z):
+    """Permutation grouping the points (N,) of a cloud spatially (Morton order of a 1024^3 grid)."""
+    n = x.shape[0]
+    lo = np.empty(3)
+    span = np.empty(3)
+    for a, v in enumerate((x, y, z)):
+        lo[a] = v.min()
+        span[a] = max(v.max() - lo[a], 1e-30)
+    code = np.empty(n, np.int64)
+    for i in range(n):
+        c = 0
+        qs = (int((x[i] - lo[0]) / span[0] * 1023.0), int((y[i] - lo[1]) / span[1] * 1023.0),
+              int((z[i] - lo[2]) / span[2] * 1023.0))
+        for bit in range(10):
+            for a in range(3):
+                c |= ((qs[a] >> bit) & 1) << (3 * bit + a)
+        code[i] = c
+    return np.argsort(code, kind="mergesort")
+
+
+@numba.njit(**_JIT)
+def _block_bounds(px, py, pz, nblk, bs):
+    """Bounding boxes (nblk, 6) float64 [xmin, ymin, zmin, xmax, ymax, zmax] of consecutive blocks."""
+    n = px.shape[0]
+    box = np.empty((nblk, 6))
+    for k in range(nblk):
+        s, e = k * bs, min(n, (k + 1) * bs)
+        box[k, 0], box[k, 1], box[k, 2] = px[s:e].min(), py[s:e].min(), pz[s:e].min()
+        box[k, 3], box[k, 4], box[k, 5] = px[s:e].max(), py[s:e].max(), pz[s:e].max()
+    return box
+
+
+@numba.njit(**_JIT)
+def _box_dist2(box, k, qx, qy, qz):
+    """Squared distance (float64) from a point to bounding box k (0 inside)."""
+    d2 = 0.0
+    for a, q in enumerate((qx, qy, qz)):
+        lo, hi = box[k, a], box[k, 3 + a]
+        if q < lo:
+            d2 += (lo - q) * (lo - q)
+        elif q > hi:
+            d2 += (q - hi) * (q - hi)
+    return d2
+
+
+@numba.njit(**_JIT)
+def _update_block(k, bs, px, py, pz, pw, pos, temp, qx, qy, qz, blk_maxtemp, blk_score, blk_pos):
+    """Update the running distances of block k after picking (qx, qy, qz); refresh its best."""
+    n = px.shape[0]
+    s, e = k * bs, min(n, (k + 1) * bs)
+    mt = temp.dtype.type(-1.0)
+    best = temp.dtype.type(-1.0)
+    bpos = n
+    for i in range(s, e):
+        # Same operation order as the reference kernel: d = dx*dx + dy*dy + dz*dz, one rounding each.
+        dx = px[i] - qx
+        dy = py[i] - qy
+        dz = pz[i] - qz
+        d = dx * dx
+        d = d + dy * dy
+        d = d + dz * dz
+        if d < temp[i]:
+            temp[i] = d
+        t = temp[i]
+        if t > mt:
+            mt = t
+        sc = t * pw[i]
+        if sc > best or (sc == best and pos[i] < bpos):
+            best = sc
+            bpos = pos[i]
+    blk_maxtemp[k] = mt
+    blk_score[k] = best
+    blk_pos[k] = bpos
+
+
+@numba.njit(**_JIT)
+def _fps_one(xyz, w, n_iter, first, out):
+    """Block FPS of one cloud xyz (N, 3) in preference order; w (N,) clamped weights; out (n_iter,)."""
+    n = xyz.shape[0]
+    bs = FPS_BLOCK
+    order = _morton_order(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+    px, py, pz = xyz[order, 0].copy(), xyz[order, 1].copy(), xyz[order, 2].copy()
+    pw = w[order].copy()
+    pos = order.astype(np.int64)
+    where = np.empty(n, np.int64)  # preference position -> slot in block order
+    where[pos] = np.arange(n)
+    nblk = (n + bs - 1) // bs
+    box = _block_bounds(px, py, pz, nblk, bs)
+    temp = np.full(n, _TEMP_INIT, xyz.dtype)
+    blk_maxtemp = np.full(nblk, _TEMP_INIT, xyz.dtype)
+    blk_score = np.zeros(nblk, xyz.dtype)
+    blk_pos = np.zeros(nblk, np.int64)
+    old = first
+    out[0] = old
+    for j in range(1, n_iter):
+        s = where[old]
+        qx, qy, qz = px[s], py[s], pz[s]
+        for k in range(nblk):
+            if _box_dist2(box, k, qx, qy, qz) * (1.0 - _SKIP_MARGIN) >= float(blk_maxtemp[k]):
+                continue  # no running distance of this block can shrink
+            _update_block(k, bs, px, py, pz, pw, pos, temp, qx, qy, qz, blk_maxtemp, blk_score, blk_pos)
+        best = blk_score[0]
+        bpos = blk_pos[0]
+        for k in range(1, nblk):
+            if blk_score[k] > best or (blk_score[k] == best and blk_pos[k] < bpos):
+                best = blk_score[k]
+                bpos = blk_pos[k]
+        old = bpos
+        out[j] = old
+
+
+@numba.njit(**_JIT)
+def fps_kernel(xyz, w_raw, w_clamped, n_iter, weighted):
+    """Furthest point sampling of a batch, in preference positions.
+
+    Args:
+        xyz: (B, N, 3) float32/float64 C-contiguous finite coordinates, already permuted into the
+            reference kernel's preference order (position 0 = original index 0).
+        w_raw: (B, N) raw weights in the same order (the first pick of weighted FPS).
+        w_clamped: (B, N) weights clamped to >= 1e-12, same dtype as xyz (the score factor).
+        n_iter: samples per cloud, 1 <= n_iter <= N.
+        weighted: False: D-FPS (start at position 0, score = running squared distance, weights
+            ignored); True: weighted FPS (start at the first largest raw weight, score = running
+            distance times the clamped weight).
+
+    Returns:
+        (B, n_iter) int64 positions in the preference order (map back with the order permutation).
+    """
+    B, n = xyz.shape[0], xyz.shape[1]
+    out = np.empty((B, n_iter), np.int64)
+    ones = np.ones(n, xyz.dtype)
+    for b in range(B):
+        first = 0
+        if weighted:
+            for i in range(1, n):
+                if w_raw[b, i] > w_raw[b, first]:
+                    first = i
+            _fps_one(xyz[b], w_clamped[b], n_iter, first, out[b])
+        else:
+            _fps_one(xyz[b], ones, n_iter, first, out[b])
+    return out
+
+
+@numba.njit(**_JIT)
+def _column_grid(x, y, cell):
+    """Points binned into 2-D columns of size ``cell``: (start (nc + 1,), members sorted by index,
+    x0, y0, nx, ny)."""
+    n = x.shape[0]
+    x0, y0 = np.float64(x.min()), np.float64(y.min())
+    nx = int((np.float64(x.max()) - x0) / cell) + 1
+    ny = int((np.float64(y.max()) - y0) / cell) + 1
+    key = np.empty(n, np.int64)
+    for i in range(n):
+        key[i] = int((np.float64(x[i]) - x0) / cell) * ny + int((np.float64(y[i]) - y0) / cell)
+    start = np.zeros(nx * ny + 1, np.int64)
+    for i in range(n):
+        start[key[i] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    members = np.empty(n, np.int64)
+    for i in range(n):  # counting sort: ascending point index within every column
+        members[fill[key[i]]] = i
+        fill[key[i]] += 1
+    return start, members, x0, y0, nx, ny
+
+
+@numba.njit(**_JIT)
+def _collect_hits(x, y, z, start, members, x0, y0, nx, ny, cell, qx, qy, qz, rmax2, buf):
+    """Indices of the points with d^2 < rmax2 in the 3 x 3 columns around a query, sorted; count."""
+    ix = math.floor((np.float64(qx) - x0) / cell)
+    iy = math.floor((np.float64(qy) - y0) / cell)
+    nh = 0
+    for cx in range(max(ix - 1, 0), min(ix + 1, nx - 1) + 1):
+        for cy in range(max(iy - 1, 0), min(iy + 1, ny - 1) + 1):
+            c = cx * ny + cy
+            for t in range(start[c], start[c + 1]):
+                i = members[t]
+                dx = qx - x[i]
+                dy = qy - y[i]
+                dz = qz - z[i]
+                d2 = dx * dx
+                d2 = d2 + dy * dy
+                d2 = d2 + dz * dz
+                if d2 < rmax2:
+                    buf[nh] = i
+                    nh += 1
+    buf[:nh].sort()
+    return nh
+
+
+@numba.njit(**_JIT)
+def _assign_shells(x, y, z, qx, qy, qz, buf, nh, r_in2, r_out2, nsamples, offsets, out, cnt):
+    """First nsample hits (index order) of every shell from the sorted hits; cyclic padding."""
+    S = r_out2.shape[0]
+    got = np.zeros(S, np.int64)
+    full = 0
+    for t in range(nh):
+        i = buf[t]
+        dx = qx - x[i]
+        dy = qy - y[i]
+        dz = qz - z[i]
+        d2 = dx * dx
+        d2 = d2 + dy * dy
+        d2 = d2 + dz * dz
+        for s in range(S):
+            if got[s] < nsamples[s] and d2 >= r_in2[s] and d2 < r_out2[s]:
+                out[offsets[s] + got[s]] = i
+                got[s] += 1
+                if got[s] == nsamples[s]:
+                    full += 1
+        if full == S:
+            break
+    for s in range(S):
+        c = got[s]
+        cnt[s] = c
+        if c > 0:
+            for j in range(c, nsamples[s]):
+                out[offsets[s] + j] = out[offsets[s] + j % c]
+
+
+@numba.njit(**_JIT)
+def ball_query_kernel(xyz, new_xyz, r_in2, r_out2, nsamples, cell):
+    """Multi-shell ball query of a batch (the reference semantics of :mod:`.grouping`).
+
+    Args:
+        xyz: (B, N, 3) finite point coordinates; new_xyz: (B, M, 3) finite centres, same dtype.
+        r_in2: (S,) squared inner radii in that dtype (-inf: a ball, no inner bound), inclusive.
+        r_out2: (S,) squared outer radii in that dtype, exclusive.
+        nsamples: (S,) int64 neighbours kept per shell.
+        cell: column size (m, float64), at least the largest outer radius plus a rounding margin
+            (see :func:`grid_cell`).
+
+    Returns:
+        (idx (B, M, sum(nsamples)) int64, the shells' index blocks side by side; cnt (B, M, S) int64
+        hits kept per shell). Empty shells keep count 0 and indices 0.
+    """
+    B, N, M, S = xyz.shape[0], xyz.shape[1], new_xyz.shape[1], r_out2.shape[0]
+    offsets = np.zeros(S, np.int64)
+    for s in range(1, S):
+        offsets[s] = offsets[s - 1] + nsamples[s - 1]
+    out = np.zeros((B, M, offsets[S - 1] + nsamples[S - 1]), np.int64)
+    cnt = np.zeros((B, M, S), np.int64)
+    rmax2 = r_out2.max()
+    buf = np.empty(N, np.int64)
+    for b in range(B):
+        x, y, z = xyz[b, :, 0].copy(), xyz[b, :, 1].copy(), xyz[b, :, 2].copy()
+        start, members, x0, y0, nx, ny = _column_grid(x, y, cell)
+        for m in range(M):
+            qx, qy, qz = new_xyz[b, m, 0], new_xyz[b, m, 1], new_xyz[b, m, 2]
+            nh = _collect_hits(x, y, z, start, members, x0, y0, nx, ny, cell, qx, qy, qz, rmax2, buf)
+            _assign_shells(x, y, z, qx, qy, qz, buf, nh, r_in2, r_out2, nsamples, offsets, out[b, m], cnt[b, m])
+    return out, cnt
+
+
+def grid_cell(r_max: float, scale: float, n_points: int, extent: float) -> float:
+    """Column size (m) for :func:`ball_query_kernel`: the largest radius ``r_max`` (m) grown by the
+    rounding margin of the tiled PyTorch query (``1e-3`` relative plus ``1e-5 (1 + scale)``, ``scale``
+    the largest absolute coordinate), and at least ``extent / sqrt(4 n_points)`` so that a sparse
+    cloud over a large extent never needs more than ~4 columns per point."""
+    cell = r_max * (1.0 + 1e-3) + 1e-5 * (1.0 + scale)
+    return max(cell, extent / math.sqrt(4.0 * max(n_points, 1)))
+
+
+_JIT_PAR = dict(cache=True, nogil=True, parallel=True)
+
+
+@numba.njit(**_JIT_PAR)
+def _weighted_sums(h, wn, centre, nchunks):
+    """Per-chunk weighted column sums of (h - centre) and (h - centre)^2 (float64, (nchunks, C) each)."""
+    R, C = h.shape
+    s1 = np.zeros((nchunks, C))
+    s2 = np.zeros((nchunks, C))
+    for k in numba.prange(nchunks):
+        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
+            w = np.float64(wn[i])
+            for c in range(C):
+                d = np.float64(h[i, c]) - centre[c]
+                s1[k, c] += w * d
+                s2[k, c] += w * d * d
+    return s1, s2
+
+
+@numba.njit(**_JIT_PAR)
+def weighted_bn_relu_forward(h, wn, gamma, beta, eps, nchunks):
+    """Fused weighted batch norm + ReLU over rows h (R, C) float32 with row weights wn (R,) summing to 1.
+
+    Returns (y (R, C) float32, mean (C,) float64, biased variance (C,) float64). The statistics are
+    accumulated in float64 (two passes: a provisional mean, then the centred sums).
+    """
+    R, C = h.shape
+    s1, _ = _weighted_sums(h, wn, np.zeros(C), nchunks)
+    mean0 = s1.sum(axis=0)
+    s1, s2 = _weighted_sums(h, wn, mean0, nchunks)
+    shift = s1.sum(axis=0)
+    mean = mean0 + shift
+    var = np.maximum(s2.sum(axis=0) - shift * shift, 0.0)
+    scale = (gamma.astype(np.float64) / np.sqrt(var + eps)).astype(np.float32)
+    offset = (beta.astype(np.float64) - mean * (gamma.astype(np.float64) / np.sqrt(var + eps))).astype(np.float32)
+    y = np.empty_like(h)
+    for k in numba.prange(nchunks):
+        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
+            for c in range(C):
+                v = h[i, c] * scale[c] + offset[c]
+                y[i, c] = v if v > 0 else np.float32(0.0)
+    return y, mean, var
+
+
+@numba.njit(**_JIT_PAR)
+def weighted_bn_relu_backward(gy, y, h, wn, mean, invstd, gamma, nchunks):
+    """Gradient of :func:`weighted_bn_relu_forward`: (dh (R, C) float32, dgamma (C,), dbeta (C,)).
+
+    ``dh_i = gamma invstd (G_i - wn_i (sum G + xhat_i sum G xhat))`` with ``G = gy [y > 0]`` and
+    ``xhat = (h - mean) invstd``: the batch-norm gradient of the population the rows stand for.
+    """
+    R, C = h.shape
+    sb = np.zeros((nchunks, C))
+    sg = np.zeros((nchunks, C))
+    mean32 = mean.astype(np.float32)
+    inv32 = invstd.astype(np.float32)
+    for k in numba.prange(nchunks):
+        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
+            for c in range(C):
+                if y[i, c] > 0:
+                    g = np.float64(gy[i, c])
+                    sb[k, c] += g
+                    sg[k, c] += g * np.float64((h[i, c] - mean32[c]) * inv32[c])
+    dbeta = sb.sum(axis=0)
+    dgamma = sg.sum(axis=0)
+    a = (gamma.astype(np.float64) * invstd).astype(np.float32)
+    db32 = dbeta.astype(np.float32)
+    dg32 = dgamma.astype(np.float32)
+    dh = np.empty_like(h)
+    for k in numba.prange(nchunks):
+        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
+            w = wn[i]
+            for c in range(C):
+                g = gy[i, c] if y[i, c] > 0 else np.float32(0.0)
+                xhat = (h[i, c] - mean32[c]) * inv32[c]
+                dh[i, c] = a[c] * (g - w * (db32[c] + xhat * dg32[c]))
+    return dh, dgamma, dbeta
+
+
+def parallel_chunks(threads: int) -> int:
+    """Use ``threads`` (capped by Numba's pool) for the parallel kernels; returns the row chunks
+    (four per thread) to pass them."""
+    n = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(n)
+    return 4 * n

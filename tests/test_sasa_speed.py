@@ -1,0 +1,189 @@
+"""The SASA speed-ups keep the numbers: the batch norm through a 4-D view is bitwise the module's,
+the padded grouped MLP is bitwise the textbook one, and the compact grouped MLP (one row per distinct
+neighbour, batch norm weighted by multiplicities) agrees with it up to float summation order, in the
+forward pass, the gradients and the running statistics."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from torch import nn
+
+from sonardet.detect.sasa import SASADetector, resolve_params
+from sonardet.detect.sasa.backbone import GroupedMLP, batch_norm_rows, group_rows
+from sonardet.detect.sasa.ops import ball_query_shells, furthest_point_sample, index_points
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def _reference_grouped_mlp(m: GroupedMLP, xyz, new_xyz, features, idx, cnt):
+    """The grouped MLP written plainly on the padded (B, M, K) slots with the modules' own calls."""
+    rel = index_points(xyz, idx) - new_xyz.unsqueeze(2)
+    h = m.w_xyz(rel) + index_points(m.w_feat(features), idx)
+    shape = h.shape
+    h = torch.relu(m.bn0(h.reshape(-1, shape[-1]))).reshape(shape)
+    for lin, bn in zip(m.rest.linears, m.rest.norms):
+        h = lin(h)
+        s = h.shape
+        h = torch.relu(bn(h.reshape(-1, s[-1]))).reshape(s)
+    h = h * (cnt > 0).to(h.dtype)[:, :, None, None]
+    return h.max(dim=2).values
+
+
+def _groups(seed=0, B=2, N=1500, M=200, K=16):
+    g = torch.Generator().manual_seed(seed)
+    xyz = torch.rand(B, N, 3, generator=g) * torch.tensor([10.0, 10.0, 1.0])
+    feats = torch.randn(B, N, 6, generator=g)
+    q = index_points(xyz, furthest_point_sample(xyz, M))
+    q[0, :4] += 50.0  # empty balls
+    (cnt, idx), = ball_query_shells([0.6], [K], xyz, q)
+    return xyz, q, feats, idx, cnt
+
+
+def _run(m, fn, xyz, q, feats, idx, cnt, grad):
+    f = feats.clone().requires_grad_()
+    c = q.clone().requires_grad_()
+    out = fn(m, xyz, c, f, idx, cnt)
+    (out * grad).sum().backward()
+    return out.detach(), f.grad, c.grad, [p.grad for p in m.parameters()], [b.clone() for b in m.buffers()]
+
+
+def _pair(compact: bool):
+    torch.manual_seed(3)
+    ref = GroupedMLP(6, [16, 32, 24], compact=False)
+    m = GroupedMLP(6, [16, 32, 24], compact=compact)
+    m.load_state_dict(ref.state_dict())
+    return ref, m
+
+
+def test_batch_norm_rows_is_bitwise_the_module():
+    torch.manual_seed(0)
+    bn1, bn2 = nn.BatchNorm1d(24), nn.BatchNorm1d(24)
+    bn2.load_state_dict(bn1.state_dict())
+    x1 = (torch.randn(5000, 24) * 3 + 1).requires_grad_()
+    x2 = x1.detach().clone().requires_grad_()
+    g = torch.randn(5000, 24)
+    for _ in range(2):  # training (batch statistics, running estimates), twice
+        (bn1(x1) * g).sum().backward()
+        (batch_norm_rows(x2, bn2) * g).sum().backward()
+    assert torch.equal(x1.grad, x2.grad) and torch.equal(bn1.weight.grad, bn2.weight.grad)
+    assert all(torch.equal(a, b) for a, b in zip(bn1.buffers(), bn2.buffers()))
+    bn1.eval()
+    bn2.eval()
+    assert torch.equal(bn1(x1), batch_norm_rows(x2, bn2))
+
+
+def test_group_rows_keeps_each_hit_once_with_its_multiplicity():
+    xyz, q, feats, idx, cnt = _groups()
+    B, M, K = idx.shape
+    rows = group_rows(idx, cnt, xyz.shape[1])
+    n = cnt.clamp(min=1, max=K).reshape(-1)
+    assert torch.equal(rows.lengths, n) and rows.total == B * M * K
+    per_centre = torch.zeros(B * M).index_add_(0, rows.centre, rows.weight.float())
+    assert torch.all(per_centre == K)  # the multiplicities cover every slot
+    flat = (idx + (torch.arange(B) * xyz.shape[1]).view(B, 1, 1)).reshape(B * M, K)
+    start = 0
+    for c in range(B * M):  # the rows are the distinct slots, in slot order
+        k = int(n[c])
+        assert torch.equal(rows.point[start:start + k], flat[c, :k])
+        assert set(flat[c].tolist()) == set(flat[c, :k].tolist())
+        start += k
+    assert bool((cnt == 0).any())
+
+
+def test_padded_grouped_mlp_is_bitwise_the_reference():
+    xyz, q, feats, idx, cnt = _groups(1)
+    ref, m = _pair(compact=False)
+    grad = torch.randn(idx.shape[0], idx.shape[1], 24)
+    a = _run(ref, _reference_grouped_mlp, xyz, q, feats, idx, cnt, grad)
+    b = _run(m, GroupedMLP.forward, xyz, q, feats, idx, cnt, grad)
+    for x, y in zip(a[:3], b[:3]):
+        assert torch.equal(x, y)
+    assert all(torch.equal(x, y) for x, y in zip(a[3] + a[4], b[3] + b[4]))
+
+
+def _rel(a, b):
+    return float((a - b).abs().max() / b.abs().max().clamp(min=1e-30))
+
+
+def test_compact_grouped_mlp_agrees_with_padded():
+    xyz, q, feats, idx, cnt = _groups(2)
+    ref, m = _pair(compact=True)
+    grad = torch.randn(idx.shape[0], idx.shape[1], 24)
+    a = _run(ref, GroupedMLP.forward, xyz, q, feats, idx, cnt, grad)
+    b = _run(m, GroupedMLP.forward, xyz, q, feats, idx, cnt, grad)
+    for x, y in zip(list(a[:3]) + a[3] + a[4], list(b[:3]) + b[3] + b[4]):
+        assert _rel(y.float(), x.float()) < 1e-4
+    assert torch.equal(a[4][2], b[4][2])  # num_batches_tracked
+    ref.eval()
+    m.eval()
+    with torch.no_grad():
+        assert _rel(m(xyz, q, feats, idx, cnt), ref(xyz, q, feats, idx, cnt)) < 1e-5
+
+
+def test_compact_groups_setting_reaches_every_grouped_mlp():
+    tiny = {"n_points": 256, "sa_npoints": [64, 32, 16], "sa_radii_m": [[0.4], [0.8], [1.6]],
+            "sa_nsamples": [[8], [8], [8]], "sa_mlps": [[[8]], [[8]], [[8]]], "sa_aggregation": [8, 8, 8],
+            "sa_confidence_mlps": [[8], [8]], "vote_mlp": [8], "vote_radii_m": [1.0], "vote_nsamples": [8],
+            "vote_mlps": [[8]], "head_shared_fc": [8], "head_cls_fc": [8], "head_reg_fc": [8]}
+    for compact in (True, False):
+        model = SASADetector(resolve_params({**tiny, "compact_groups": compact}))
+        flags = {m.compact for m in model.modules() if isinstance(m, GroupedMLP)}
+        assert flags == {compact}
+
+
+def test_weighted_batch_norm_gradient_is_the_population_gradient():
+    # rows standing for 1-3 slots each: the same loss as the plain batch norm of the expanded rows
+    from sonardet.detect.sasa.backbone import GroupRows, weighted_batch_norm_relu
+
+    g = torch.Generator().manual_seed(4)
+    h = torch.randn(40, 5, generator=g, dtype=torch.float64)
+    w = torch.randint(1, 4, (40,), generator=g)
+    rows = GroupRows(torch.arange(40), torch.arange(40), w, torch.ones(40, dtype=torch.long), int(w.sum()))
+    up = torch.randn(40, 5, generator=g, dtype=torch.float64)
+    bn1, bn2 = nn.BatchNorm1d(5).double(), nn.BatchNorm1d(5).double()
+    with torch.no_grad():
+        bn1.weight.uniform_(0.5, 1.5)
+        bn1.bias.uniform_(-0.5, 0.5)
+    bn2.load_state_dict(bn1.state_dict())
+    h1, h2 = h.clone().requires_grad_(), h.clone().requires_grad_()
+    y1 = weighted_batch_norm_relu(h1, bn1, rows)
+    # the padded population: row i repeated w_i times, its gradient arriving on the first copy
+    rep = torch.repeat_interleave(torch.arange(40), w)
+    first = torch.ones_like(rep, dtype=torch.bool)
+    first[1:] = rep[1:] != rep[:-1]
+    y2 = torch.relu(bn2(h2[rep]))
+    (y1 * up).sum().backward()
+    (y2 * (up[rep] * first[:, None])).sum().backward()
+    assert torch.allclose(y1, y2[first], atol=1e-12)
+    assert torch.allclose(h1.grad, h2.grad, atol=1e-10)
+    assert torch.allclose(bn1.weight.grad, bn2.weight.grad, atol=1e-10)
+    assert torch.allclose(bn1.bias.grad, bn2.bias.grad, atol=1e-10)
+    assert all(torch.allclose(a.double(), b.double(), atol=1e-12) for a, b in zip(bn1.buffers(), bn2.buffers()))
+
+
+def test_fused_weighted_batch_norm_kernel_equals_torch_formulation(monkeypatch):
+    from sonardet.detect.sasa import backbone
+    from sonardet.detect.sasa.backbone import GroupRows, weighted_batch_norm_relu
+
+    assert backbone.kernels is not None
+    g = torch.Generator().manual_seed(6)
+    h = torch.randn(3000, 24, generator=g) * 2 + 5  # an offset mean: the statistics must not cancel
+    w = torch.randint(1, 5, (3000,), generator=g)
+    rows = GroupRows(torch.arange(3000), torch.arange(3000), w, torch.ones(3000, dtype=torch.long), int(w.sum()))
+    up = torch.randn(3000, 24, generator=g)
+    out = []
+    for fused in (True, False):
+        if not fused:
+            monkeypatch.setattr(backbone, "kernels", None)
+        torch.manual_seed(1)
+        bn = nn.BatchNorm1d(24)
+        with torch.no_grad():
+            bn.weight.uniform_(0.5, 1.5)
+            bn.bias.uniform_(-0.5, 0.5)
+        x = h.clone().requires_grad_()
+        y = weighted_batch_norm_relu(x, bn, rows)
+        (y * up).sum().backward()
+        out.append([y.detach(), x.grad, bn.weight.grad, bn.bias.grad, bn.running_mean, bn.running_var])
+    for a, b in zip(*out):
+        assert _rel(a, b) < 1e-5
