@@ -83,7 +83,7 @@ def test_a_mismatch_scene_records_its_perturbations(built_objects, default_confi
     cfg = validate_config({"classes": ["reef_cone", "tetrapod_s"], "mismatch_test": {"enabled": True},
                            "scenes": {"n_scenes": 2, "extent_m": [12, 12], "n_objects": [3, 3], "n_rocks": [0, 0],
                                       "scatter_fraction": [1.0, 1.0]},
-                           "sensor": {"n_beams": 128}})
+                           "sensor": {"n_beams": 128}, "split": {"n_test": 1, "n_dev": 1}})
     objects = {c: _base(built_objects, c, default_config) for c in cfg["classes"]}
     scene = simulate_scene("s0000", mismatch_test_config(cfg), objects)
     objs = scene.meta["objects"]

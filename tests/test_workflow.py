@@ -18,8 +18,8 @@ pytestmark = pytest.mark.slow
 #: The smoke config's classes: the four reef elements and a fifth one from a plugin (tests/plugins).
 CLASSES = ["reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s", "concrete_cube"]
 #: Test sets evaluated on their own (the hybrid one needs the real line), and the development sets.
-TEST_SETS = ("synthetic", "realism") + (("hybrid",) if REAL_FILE is not None else ())
-DEV_SETS = ("dev", "realism_dev")
+TEST_SETS = ("synthetic", "realism", "mismatch") + (("hybrid",) if REAL_FILE is not None else ())
+DEV_SETS = ("dev", "realism_dev", "mismatch_dev")
 EVAL_SETS = TEST_SETS + DEV_SETS
 
 
@@ -67,7 +67,7 @@ def test_detections_of_every_method(smoke_run):
     assert len(test) == 1 and len(dev) == 1
     ablated = ["model_based_ours", "sasa_100", "sasa_dr_100"]  # realism_ablation.methods of the smoke config
     for method in METHODS + ["sasa_dr_100"]:
-        sets = [(d, test) for d in ("synthetic", "realism")] + [(d, dev) for d in DEV_SETS]
+        sets = [(d, test) for d in ("synthetic", "realism", "mismatch")] + [(d, dev) for d in DEV_SETS]
         if method in ablated:  # the realism ablation runs on the dev scenes
             sets += [(d, dev) for d in ("realism_quantisation", "realism_burial")]
         for dataset, scenes in sets:
@@ -187,6 +187,7 @@ def test_report_tables_and_figures(smoke_run):
                      # vs model_based_ours: every other method (+ sasa_dr_100) on each test set, the
                      # ladder's paper_tight on the synthetic one
                      "differences": len(METHODS) + 1 + len(METHODS) * (len(TEST_SETS) - 1)}
+    expected_rows["comparison_mismatch"] = len(METHODS) + 2
     expected_rows["realism_ablation"] = 4  # none, quantisation, burial, all
     expected_rows["domain_randomisation"] = len(TEST_SETS)
     if REAL_FILE is not None:
