@@ -109,9 +109,12 @@ def test_scene_contract(small, tmp_path):
 def test_flat_noiseless_seabed_scene_is_a_plane():
     cfg = validate_config({
         "sensor": {"range_sigma_m": 0.0, "dropout_prob": 0.0, "n_beams": 128},
-        "scenes": {"extent_m": [10, 10], "n_objects": [0, 0], "n_rocks": [0, 0],
+        "scenes": {"extent_m": [10, 10], "n_objects": [1, 1], "n_rocks": [0, 0],
                    "seabed": {"slope_deg": [0, 0], "amplitude_m": [0, 0], "roughness_m": 0.0}},
     })
+    # A bare seabed: the validator refuses scenes without objects for an experiment (nothing to
+    # evaluate), so the scene generator gets them after validation.
+    cfg["scenes"]["n_objects"] = [0, 0]
     scene = simulate_scene("s0000", cfg, {})
     assert np.ptp(scene.xyz[:, 2]) < 1e-5
     cfg["sensor"]["range_sigma_m"] = 0.01
