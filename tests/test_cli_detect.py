@@ -198,6 +198,25 @@ def test_cli_tiles_a_survey_larger_than_a_tile(survey, survey_xyz, results_dir, 
         assert len(match) == 1 and match[0]["cls"] == d["cls"]
 
 
+def test_cli_jobs_give_the_detections_of_one_process(survey_xyz, results_dir, tmp_path, capsys):
+    """--jobs 2 runs the 4 tiles of --tile-m 7 in two worker processes: every output file is the same bytes
+    as with --jobs 1; the summary line gives the soundings per second and the jobs used."""
+    common = ["--input", str(survey_xyz), "--results", str(results_dir), "--crs", "EPSG:32610", "--tile-m", "7",
+              "--overlap-m", "3", "--all-hypotheses"]
+    outs = {}
+    for jobs in ("1", "2"):
+        d = tmp_path / f"j{jobs}"
+        d.mkdir()
+        assert main(["detect", "--out", str(d / "survey.json"), "--csv", str(d / "survey.csv"),
+                     "--geojson", str(d / "survey.geojson"), "--jobs", jobs, *common]) == 0
+        outs[jobs] = {p.name: p.read_bytes() for p in sorted(d.iterdir())}
+        line = capsys.readouterr().out
+        assert re.search(r"4 tile\(s\), .* s detection \(\d+ soundings/s" + (r", 2 jobs\)" if jobs == "2" else r"\)"),
+                         line), line
+    assert outs["1"] == outs["2"] and len(outs["1"]) == 4  # json, csv + its sidecar, geojson
+    assert read_detections(tmp_path / "j1" / "survey.json")["detections"]
+
+
 def test_crs_comes_from_the_file(survey, results_dir, tmp_path, capsys):
     las = tmp_path / "survey.las"
     write_points(las, PointCloud(survey[0], crs="EPSG:32610"))
@@ -250,6 +269,7 @@ def test_bad_input_is_a_readable_error(results_dir, tmp_path, capsys, name, cont
 @pytest.mark.parametrize("args,pattern", [
     (["--overlap-m", "2"], r"overlap_m = 2 m is smaller than the largest object footprint \(2\.\d+ m\)"),
     (["--tile-m", "0"], r"tile_m must be a positive"),
+    (["--jobs", "0"], r"--jobs 0: the number of tiles detected at once must be at least 1"),
     (["--params", '{"voxel": 0.1}'], r"unknown model-based detector parameter 'voxel'"),
     (["--params", "{voxel"], r"--params: not valid JSON"),
     (["--params", "[1, 2]"], r"neither a JSON object nor an existing JSON file"),

@@ -8,6 +8,7 @@
     sonardet detect --input depths.xyz --z-positive down --crs EPSG:32610 --out det.json --las det.laz --meshes det.ply
     sonardet detect --input survey_lonlat.csv --out det.json --geojson det.geojson   # lon,lat,depth columns
     sonardet detect --input bathy_0.2m.tif --out det.json --csv det.csv               # GeoTIFF / BAG grids
+    sonardet detect --input big_survey.laz --jobs 4 --out det.json                     # 4 tiles at once
     sonardet export-dataset --format openpcdet --results results --out data/custom
 """
 
@@ -182,7 +183,7 @@ def _detect_run(args, cfg: dict, classes: list[str]):
     """The method of `sonardet detect`, loaded (sonardet.survey.DetectRun), with the object models."""
     from . import methods
     from .methods import Resources
-    from .survey import DetectRun, plan_tiles
+    from .survey import DetectRun, available_cores, plan_tiles
 
     method = _detect_method(args, cfg)
     kinds = set(method.resources) | ({"objects"} if args.meshes is not None else set())
@@ -198,7 +199,7 @@ def _detect_run(args, cfg: dict, classes: list[str]):
         threads=args.threads))
     return DetectRun(method.name, detector, classes, args.tile_m, args.overlap_m, footprint, args.all_hypotheses,
                      keep_fliers=args.keep_fliers, objects=objects, colours=_class_colours(classes),
-                     progress=not args.quiet)
+                     progress=not args.quiet, jobs=args.jobs if args.jobs is not None else available_cores())
 
 
 def _run_detect(args) -> int:
@@ -207,6 +208,9 @@ def _run_detect(args) -> int:
     from .survey import OutputPaths, SurveySource, detect_survey_file
 
     t0 = time.perf_counter()
+    if args.jobs is not None and args.jobs < 1:
+        raise ValueError(f"--jobs {args.jobs}: the number of tiles detected at once must be at least 1 (default: "
+                         f"all CPU cores)")
     cfg = _config(args)
     classes = list(args.classes) if args.classes else list(cfg["classes"])
     cfg["classes"] = classes
@@ -225,9 +229,11 @@ def _run_detect(args) -> int:
     frame = crs or "the input frame"
     if res.survey.projection is not None:
         frame = f"{crs} (projected from {res.survey.input_crs})"
+    jobs = f", {res.jobs} jobs" if res.jobs > 1 else ""
     print(f"sonardet detect: {args.input.name}: {len(res.survey.cloud)} points, {res.n_tiles} tile(s), {len(dets)} "
-          f"detection(s) ({n_acc} accepted; {kept}), {run.method}, {res.detect_seconds:.1f} s detection, "
-          f"{time.perf_counter() - t0:.1f} s total, coordinates in {frame} -> {args.out}")
+          f"detection(s) ({n_acc} accepted; {kept}), {run.method}, {res.detect_seconds:.1f} s detection "
+          f"({res.soundings_per_second:.0f} soundings/s{jobs}), {time.perf_counter() - t0:.1f} s total, coordinates "
+          f"in {frame} -> {args.out}")
     return 0
 
 
@@ -313,7 +319,12 @@ def _add_detect_parser(sub) -> None:
                    help="workflow config whose settings the method uses (default: the built-in defaults)")
     p.add_argument("--plugins", nargs="+", default=None,
                    help="plugin modules (.py files or module names) registering more methods or classes")
-    p.add_argument("--threads", type=int, default=1, help="CPU threads of a learned method (default: 1)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="CPU threads of a learned method (default: 1; with --jobs above 1 each tile process uses one)")
+    p.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="tiles detected at once, each in its own process on one thread (default: all CPU cores "
+                        "this process may use; a survey of one tile runs in one process); the detections are "
+                        "those of --jobs 1")
     p.add_argument("--all-hypotheses", action="store_true",
                    help="also write the hypotheses the method did not accept as objects (model-based `ours` "
                         "keeps them at a low score, extras.accepted false); default: accepted objects only")

@@ -3,7 +3,8 @@
 * `extent`: where the soundings are (occupied cells of a coarse grid) and the fliers (a few soundings far
   from the rest), never in proportion to the bounding box;
 * `tiling`: plan tiles over a survey's x/y bounds near its data, the ownership rule, the merge of tile detections and
-  the one-process tiled detection (`detect_tiled`, used by ``sonardet detect``);
+  the tiled detection of a survey held in memory (`detect_tiled`, used by ``sonardet detect``; tiles
+  in parallel worker processes with ``jobs``);
 * `split`: the workflow's checkpoint, a survey file cut into tile files by a streaming two-pass split,
   and the tile index;
 * `merge`: the tiles' detections merged and written in the survey's own coordinates;
@@ -62,6 +63,8 @@ from sonardet.survey.split import (
 from sonardet.survey.tiling import (
     SurveyLayout,
     Tile,
+    available_cores,
+    check_jobs,
     detect_survey,
     detect_tiled,
     merge_tile_detections,
@@ -92,6 +95,8 @@ __all__ = [
     "SurveyReader",
     "SurveySource",
     "Tile",
+    "available_cores",
+    "check_jobs",
     "classify_soundings",
     "detect_survey_file",
     "detect_tiled",

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from sonardet.io.points import PointCloud, iter_slices
 from sonardet.survey.outputs import OutputPaths, SurveyMeta, write_survey_outputs
 from sonardet.survey.source import SurveyCloud, SurveySource, read_survey
-from sonardet.survey.tiling import detect_survey, plan_tiles
+from sonardet.survey.tiling import check_jobs, detect_survey, plan_tiles
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +33,8 @@ class DetectRun:
     detections or (detections, stats)), the classes, tiling (`tile_m`, `overlap_m`, `min_overlap_m`: the
     largest object footprint, all m), whether rejected hypotheses are kept, whether fliers (isolated
     far soundings, `survey.extent`) are kept instead of left out and reported, the object models and class
-    colours (for the meshes output), progress bars on a terminal."""
+    colours (for the meshes output), progress bars on a terminal, and `jobs`: tiles detected at once in
+    worker processes (`tiling.detect_tiled`; 1: one after another in this process)."""
 
     method: str
     detector: Callable
@@ -46,18 +47,27 @@ class DetectRun:
     objects: Mapping | None = None
     colours: Mapping[str, str] = field(default_factory=dict)
     progress: bool = False
+    jobs: int = 1
 
 
 @dataclass
 class SurveyDetection:
     """What `detect_survey_file` did: the survey as read, the JSON document written, the number of
-    tiles run, of hypotheses before the accepted-only filter, and the detection time (s)."""
+    tiles run, of hypotheses before the accepted-only filter, the detection time (s), the number of soundings
+    detection saw (fliers left out) and of worker processes it used (1: none)."""
 
     survey: SurveyCloud
     doc: dict
     n_tiles: int
     n_hypotheses: int
     detect_seconds: float
+    n_detected_points: int = 0
+    jobs: int = 1
+
+    @property
+    def soundings_per_second(self) -> float:
+        """Soundings detection saw per second of detection (0 when no time was measured)."""
+        return self.n_detected_points / self.detect_seconds if self.detect_seconds > 0 else 0.0
 
 
 def detect_survey_file(source: SurveySource, run: DetectRun, paths: OutputPaths, *, name: str | None = None,
@@ -73,6 +83,7 @@ def detect_survey_file(source: SurveySource, run: DetectRun, paths: OutputPaths,
     ValueError / FileNotFoundError naming the file and the option to fix.
     """
     plan_tiles((0.0, 0.0, 0.0, 0.0), run.tile_m, run.overlap_m, run.min_overlap_m)  # bad tiling fails first
+    check_jobs(run.jobs)
     survey = read_survey(source)
     cloud = survey.cloud
     paths.check(cloud.crs, bool(run.objects))
@@ -83,7 +94,7 @@ def detect_survey_file(source: SurveySource, run: DetectRun, paths: OutputPaths,
     t = time.perf_counter()
     # Fliers dropped unless run.keep_fliers; tiles only near the data (survey.extent).
     dets, info = detect_survey(cloud.xyz, run.detector, run.tile_m, run.overlap_m, run.min_overlap_m,
-                               run.keep_fliers, str(source.path), bar=run.progress)
+                               run.keep_fliers, str(source.path), bar=run.progress, jobs=run.jobs)
     n_tiles = info["n_tiles"]
     seconds = time.perf_counter() - t
     n_all = len(dets)
@@ -94,4 +105,5 @@ def detect_survey_file(source: SurveySource, run: DetectRun, paths: OutputPaths,
     bounds = (cloud.xyz.min(axis=0), cloud.xyz.max(axis=0))
     doc = write_survey_outputs(dets, paths, meta, bounds=bounds, objects=run.objects, colours=run.colours,
                                soundings=lambda: (c.xyz for c in iter_slices(cloud, chunk_points)))
-    return SurveyDetection(SurveyCloud(cloud, survey.input_crs, survey.projection), doc, n_tiles, n_all, seconds)
+    return SurveyDetection(SurveyCloud(cloud, survey.input_crs, survey.projection), doc, n_tiles, n_all, seconds,
+                           info["n_points"], info["jobs"])

@@ -23,6 +23,15 @@ one tile. As a safety net for fits whose centres straddle a seam (the same objec
 millimetres to each side of the core border by two tiles), detections of *different* tiles whose box
 centres are closer than `dup_dist_m` are suppressed, the higher score kept.
 
+Parallel tiles (`detect_tiled` with ``jobs`` > 1): the tiles run in worker processes forked once per
+call (``concurrent.futures.ProcessPoolExecutor`` with the "fork" start method). The points, their x
+order and the detector are handed to the workers by the fork itself (a module-level table set before
+the pool starts, read-only in the workers: copy-on-write pages, never pickled), and each task carries
+only its `Tile`: the worker cuts its tile out by index and gets a copy of that tile's points only, so
+peak memory is the cloud once plus one tile per worker. Each worker runs its numerical libraries on
+one thread (`_one_thread_per_worker`), so ``jobs`` workers use ``jobs`` cores. Results are put back in
+plan order before merging, so the detections are the same, in the same order, as with ``jobs`` = 1.
+
 Frames and units: metres, in the frame of the points given (a local frame or a survey CRS such as
 UTM: x east, y north); all arithmetic in float64, so UTM coordinates (5e5, 4e6) are exact to
 nanometres. Tile ids are "t{ix:03d}_{iy:03d}" with ix counting along x (east) and iy along y (north).
@@ -30,13 +39,21 @@ nanometres. Tile ids are "t{ix:03d}_{iy:03d}" with ix counting along x (east) an
 
 from __future__ import annotations
 
+import itertools
 import logging
+import multiprocessing
+import os
+import sys
 import time
+import warnings
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
+from sonardet.determinism import THREAD_VARIABLES
 from sonardet.progress import progress_bar
 from sonardet.survey.extent import (
     FLIER_GAP_M,
@@ -49,8 +66,8 @@ from sonardet.survey.extent import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SurveyLayout", "Tile", "detect_survey", "detect_tiled", "merge_tile_detections", "plan_tiles",
-           "survey_layout", "tile_points"]
+__all__ = ["SurveyLayout", "Tile", "available_cores", "check_jobs", "detect_survey", "detect_tiled",
+           "merge_tile_detections", "plan_tiles", "survey_layout", "tile_points"]
 
 
 @dataclass(frozen=True)
@@ -303,6 +320,22 @@ def _column_index(xyz: np.ndarray, keep: np.ndarray | None):
     return order, xyz[order, 0]
 
 
+def _cut_tile(p: np.ndarray, order: np.ndarray, xs: np.ndarray, tile: Tile) -> np.ndarray:
+    """Indices (ascending) of the points of the tile's padded rectangle: its column strip by bisection in the
+    x-sorted index (`_column_index`), then a test on y."""
+    x0, y0, x1, y1 = tile.padded
+    a, b = np.searchsorted(xs, x0, "left"), np.searchsorted(xs, x1, "right")
+    col = order[a:b]
+    yc = p[col, 1]
+    return np.sort(col[(yc >= y0) & (yc <= y1)])
+
+
+def _tile_row(tile: Tile, n_points: int) -> dict:
+    """The per-tile row of `detect_tiled`, before the detector ran."""
+    return {"tile": tile.id, "core": list(tile.core), "padded": list(tile.padded), "n_points": int(n_points),
+            "n_detections": 0, "n_kept": 0, "seconds": 0.0, "skipped": n_points == 0, "stats": None}
+
+
 def _run_tile(p: np.ndarray, idx: np.ndarray, tile: Tile, detect_fn: Callable, row: dict) -> list:
     """detect_fn on the tile's points p[idx]; fills the row's seconds, stats, counts; returns the detections."""
     t = time.perf_counter()
@@ -317,9 +350,155 @@ def _run_tile(p: np.ndarray, idx: np.ndarray, tile: Tile, detect_fn: Callable, r
     return dets
 
 
+def _log_tile(k: int, n: int, tile: Tile, row: dict) -> None:
+    if row["skipped"]:
+        log.info("tile %d/%d %s: no points, skipped", k, n, tile.id)
+    else:
+        log.info("tile %d/%d %s: %d points, %d detections (%d centred in the core), %.1f s",
+                 k, n, tile.id, row["n_points"], row["n_detections"], row["n_kept"], row["seconds"])
+
+
+def available_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask where the system has one, e.g. under
+    ``taskset`` or a SLURM allocation; else ``os.cpu_count()``); at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def check_jobs(jobs) -> int:
+    """`jobs` as an int; ValueError unless it is a whole number >= 1."""
+    if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
+        raise ValueError(f"jobs must be a whole number >= 1 (tiles detected in parallel processes), got {jobs!r}")
+    return int(jobs)
+
+
+def _n_workers(jobs: int, n_tiles: int) -> int:
+    """Worker processes `detect_tiled` starts for `jobs` and `n_tiles` tiles: at most one per tile; 1 (no
+    worker: tiles in this process) where the platform cannot fork, this process has started CUDA or Numba's
+    OpenMP threading layer (GNU OpenMP's threads do not survive a fork; Numba aborts the child)."""
+    n = min(check_jobs(jobs), n_tiles)
+    if n > 1 and "fork" not in multiprocessing.get_all_start_methods():
+        log.warning("jobs = %d: this platform cannot fork worker processes; the tiles run one after another", n)
+        return 1
+    torch = sys.modules.get("torch")
+    if n > 1 and torch is not None and torch.cuda.is_initialized():
+        log.info("jobs = %d: the detector runs on a GPU, which forked processes cannot use; the tiles run one "
+                 "after another on it", n)
+        return 1
+    if n > 1 and _numba_layer() == "omp":
+        log.warning("jobs = %d: Numba's OpenMP threading layer is already running in this process, and a forked "
+                    "process that runs Numba's parallel code aborts; the tiles run one after another (set "
+                    "NUMBA_THREADING_LAYER=workqueue, or detect before any parallel Numba code runs)", n)
+        return 1
+    return max(n, 1)
+
+
+def _numba_layer() -> str | None:
+    """The threading layer Numba has started in this process ('omp', 'tbb', 'workqueue'), None if none."""
+    numba = sys.modules.get("numba")
+    if numba is None:
+        return None
+    try:
+        return numba.threading_layer()
+    except ValueError:  # not started yet
+        return None
+
+
+#: What the forked tile workers read: call token -> (points, x order, sorted x, detector). Set by
+#: `_detect_parallel` before its pool forks, so the workers inherit it (nothing of it is pickled).
+_FORKED: dict[int, tuple] = {}
+_TOKENS = itertools.count()
+#: threadpoolctl's limits of a worker (kept referenced for the worker's lifetime).
+_WORKER_LIMITS: list = []
+
+
+def _one_thread_per_worker() -> None:
+    """Initializer of a tile worker: one thread for each numerical library, so `jobs` workers load `jobs`
+    cores. Libraries loaded later in the worker read the thread variables; those the parent had loaded
+    are set through their own calls (threadpoolctl for BLAS/OpenMP when installed; PyTorch, Numba and
+    Open3D directly), since the variables are read only when a library loads."""
+    for name in THREAD_VARIABLES:
+        os.environ[name] = "1"
+    if "numba" not in sys.modules:  # Numba refuses a NUMBA_NUM_THREADS changed after it was imported
+        os.environ["NUMBA_NUM_THREADS"] = "1"
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        pass
+    else:
+        _WORKER_LIMITS.append(threadpool_limits(limits=1))
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(1)
+    numba = sys.modules.get("numba")
+    if numba is not None:
+        try:
+            numba.set_num_threads(1)
+        except Exception as exc:  # no threading layer: numba's parallel code then runs on one thread anyway
+            log.debug("numba.set_num_threads(1) in a tile worker: %s", exc)
+    o3d = sys.modules.get("open3d")
+    if o3d is not None and hasattr(o3d.utility, "set_max_threads"):
+        o3d.utility.set_max_threads(1)
+
+
+def _tile_job(token: int, tile: Tile):
+    """One tile in a worker: cut its points from the inherited cloud, run the detector; (detections, row)."""
+    p, order, xs, detect_fn = _FORKED[token]
+    idx = _cut_tile(p, order, xs, tile)
+    row = _tile_row(tile, len(idx))
+    dets = _run_tile(p, idx, tile, detect_fn, row) if len(idx) else None
+    return dets, row
+
+
+def _tile_failed(tile: Tile, exc: BaseException) -> Exception:
+    """The error raised for a tile whose worker failed: names the tile and its core, keeps ValueError (a
+    readable error of the command line) a ValueError."""
+    x0, y0, x1, y1 = tile.core
+    where = f"tile {tile.id} (core x {x0:.2f}..{x1:.2f} m, y {y0:.2f}..{y1:.2f} m)"
+    if isinstance(exc, BrokenProcessPool):
+        return RuntimeError(f"{where}: a tile worker process died unexpectedly (killed for lack of memory? "
+                            f"try fewer jobs): {exc}")
+    kind = ValueError if isinstance(exc, ValueError) else RuntimeError
+    return kind(f"{where}: the detector failed: {type(exc).__name__}: {exc}")
+
+
+def _detect_parallel(p, order, xs, tiles, detect_fn, workers: int, progress: bool, bar: bool):
+    """`detect_tiled`'s loop over the tiles in `workers` forked processes: (per-tile detections, rows), both
+    in plan order; the bar advances and the log lines come as tiles finish."""
+    token = next(_TOKENS)
+    _FORKED[token] = (p, order, xs, detect_fn)
+    results = [None] * len(tiles)
+    try:
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
+                                   initializer=_one_thread_per_worker)
+        with pool, progress_bar(total=len(tiles), desc="detect", unit="tile", enabled=bar) as pbar:
+            with warnings.catch_warnings():  # Python >= 3.12 warns on any fork of a process with threads (a lock
+                # held by another thread stays held in the child); the forking is deliberate, see the module doc
+                warnings.filterwarnings("ignore", message=r".*use of fork\(\) may lead to deadlocks",
+                                        category=DeprecationWarning)
+                pending = {pool.submit(_tile_job, token, tile): k for k, tile in enumerate(tiles)}
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in sorted(done, key=pending.get):
+                    k = pending.pop(fut)
+                    if fut.exception() is not None:
+                        pool.shutdown(wait=False, cancel_futures=True)
+                        raise _tile_failed(tiles[k], fut.exception()) from fut.exception()
+                    results[k] = fut.result()
+                    pbar.update(1)
+                    if progress:
+                        _log_tile(k + 1, len(tiles), tiles[k], results[k][1])
+    finally:
+        del _FORKED[token]
+    per_tile = {t.id: dets for t, (dets, _) in zip(tiles, results) if dets is not None}
+    return per_tile, [row for _, row in results]
+
+
 def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, overlap_m: float = 3.0,
                  progress: bool = True, min_overlap_m: float | None = None, dup_dist_m: float = 0.5,
-                 keep_fliers: bool = False, layout: SurveyLayout | None = None, bar: bool = False):
+                 keep_fliers: bool = False, layout: SurveyLayout | None = None, bar: bool = False, jobs: int = 1):
     """Run `detect_fn` tile by tile over the points xyz (N,3) (float64 metres, any frame incl. UTM)
     and merge the results.
 
@@ -334,6 +513,16 @@ def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, ove
     3/9 t002_000: 51234 points, 2 detections, 4.1 s"); with `bar`, a
     progress bar with the time left is drawn on a terminal (`sonardet.progress`).
 
+    jobs: tiles detected at once, each in a worker process forked for this call (at most one per tile;
+    see the module doc: the workers inherit the points and the detector, cut their tile by index and
+    run their libraries on one thread). The detections and rows are those of ``jobs`` = 1 (the rows'
+    seconds aside), in the same order, provided the detector's results do not depend on its thread count
+    (the project's detectors: model-based runs Open3D on one thread, SASA on ``num_threads``, default 1;
+    a multi-threaded reduction may round differently from the workers' single thread). Tiles are logged
+    and the bar advances as they finish. A
+    detector's exception in a worker is raised here as a RuntimeError (ValueError for a ValueError)
+    naming the tile, chained to the original. ``jobs`` = 1 runs every tile in this process.
+
     Returns (detections, per_tile_stats): the merged detections (`merge_tile_detections`, sorted by
     descending score) and one dict per planned tile {tile, core, padded, n_points, n_detections, n_kept,
     seconds, skipped, stats (what detect_fn returned, if any)}.
@@ -341,57 +530,57 @@ def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, ove
     p = np.asarray(xyz)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"xyz must be an (N,3) array of x, y, z in metres, got shape {p.shape}")
+    check_jobs(jobs)
     if len(p) == 0:
         _check_plan((0.0, 0.0, 0.0, 0.0), tile_m, overlap_m, min_overlap_m)
         return [], []
     layout = layout or survey_layout(p, tile_m, overlap_m, min_overlap_m, keep_fliers)
     tiles = layout.tiles
     order, xs = _column_index(p, layout.keep)
+    workers = _n_workers(jobs, len(tiles))
+    if workers > 1:
+        per_tile, rows = _detect_parallel(p, order, xs, tiles, detect_fn, workers, progress, bar)
+        return merge_tile_detections(per_tile, tiles, dup_dist_m), rows
     per_tile, rows = {}, []
     for k, tile in enumerate(progress_bar(tiles, desc="detect", unit="tile", enabled=bar), 1):
-        x0, y0, x1, y1 = tile.padded
-        a, b = np.searchsorted(xs, x0, "left"), np.searchsorted(xs, x1, "right")
-        col = order[a:b]
-        yc = p[col, 1]
-        idx = np.sort(col[(yc >= y0) & (yc <= y1)])
-        row = {"tile": tile.id, "core": list(tile.core), "padded": list(tile.padded), "n_points": int(len(idx)),
-               "n_detections": 0, "n_kept": 0, "seconds": 0.0, "skipped": len(idx) == 0, "stats": None}
+        idx = _cut_tile(p, order, xs, tile)
+        row = _tile_row(tile, len(idx))
         rows.append(row)
-        if len(idx) == 0:
-            if progress:
-                log.info("tile %d/%d %s: no points, skipped", k, len(tiles), tile.id)
-            continue
-        per_tile[tile.id] = _run_tile(p, idx, tile, detect_fn, row)
+        if len(idx):
+            per_tile[tile.id] = _run_tile(p, idx, tile, detect_fn, row)
         if progress:
-            log.info("tile %d/%d %s: %d points, %d detections (%d centred in the core), %.1f s",
-                     k, len(tiles), tile.id, len(idx), row["n_detections"], row["n_kept"], row["seconds"])
+            _log_tile(k, len(tiles), tile, row)
     return merge_tile_detections(per_tile, tiles, dup_dist_m), rows
 
 
 def detect_survey(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, overlap_m: float = 3.0,
                   min_overlap_m: float | None = None, keep_fliers: bool = False, source: str = "survey",
-                  bar: bool = False):
+                  bar: bool = False, jobs: int = 1):
     """Detection on a whole survey held in memory (what ``sonardet detect`` runs): `survey_layout`
     (fliers dropped unless `keep_fliers`, logged naming `source`), then `detect_fn` on the points used in
-    one call when one tile covers them, else `detect_tiled` (with `bar`, a progress bar on a terminal).
-    xyz: (N, 3) float64 m, any frame.
+    one call when one tile covers them, else `detect_tiled` (with `bar`, a progress bar on a terminal;
+    `jobs` tiles at once in worker processes). xyz: (N, 3) float64 m, any frame.
 
     Returns (detections, info): detections in xyz's frame; info {n_points (used), n_tiles (tiles that
-    held points), rows (`detect_tiled`'s per-tile rows, None for one tile), fliers (the
-    `Fliers.to_json` report, None without fliers)}."""
+    held points), jobs (worker processes used; 1: all in this process), rows (`detect_tiled`'s per-tile
+    rows, None for one tile), fliers (the `Fliers.to_json` report, None without fliers)}."""
     p = np.asarray(xyz)
     if p.ndim != 2 or p.shape[1] != 3 or not len(p):
         raise ValueError(f"{source}: expected (N, 3) points with N >= 1, got shape {p.shape}")
+    check_jobs(jobs)
     layout = survey_layout(p, tile_m, overlap_m, min_overlap_m, keep_fliers, source=source)
-    info = {"n_points": len(p) if layout.keep is None else len(layout.keep), "n_tiles": 1, "rows": None,
+    info = {"n_points": len(p) if layout.keep is None else len(layout.keep), "n_tiles": 1, "jobs": 1, "rows": None,
             "fliers": layout.fliers.to_json() if layout.fliers is not None else None}
     if len(layout.tiles) == 1:
         res = detect_fn(layout.points(p))
         dets = list(res[0]) if isinstance(res, tuple) and len(res) == 2 and isinstance(res[1], dict) else list(res)
         return dets, info
     b = layout.bounds
-    log.info("%s: %d points over %.1f x %.1f m in %d tiles of <= %g m (overlap %g m)", source, info["n_points"],
-             b[2] - b[0], b[3] - b[1], len(layout.tiles), tile_m, overlap_m)
-    dets, rows = detect_tiled(p, detect_fn, tile_m, overlap_m, True, min_overlap_m, layout=layout, bar=bar)
+    info["jobs"] = _n_workers(jobs, len(layout.tiles))
+    log.info("%s: %d points over %.1f x %.1f m in %d tiles of <= %g m (overlap %g m)%s", source, info["n_points"],
+             b[2] - b[0], b[3] - b[1], len(layout.tiles), tile_m, overlap_m,
+             f", {info['jobs']} at once" if info["jobs"] > 1 else "")
+    dets, rows = detect_tiled(p, detect_fn, tile_m, overlap_m, True, min_overlap_m, layout=layout, bar=bar,
+                              jobs=info["jobs"])
     info.update(rows=rows, n_tiles=sum(not r["skipped"] for r in rows))
     return dets, info
