@@ -275,7 +275,7 @@ def test_threshold_change_reruns_only_its_jobs(smoke_run):
     # evaluations and comparisons and what reads them.
     n_sets = len(EVAL_SETS)
     assert jobs == {"detect_scene": n_sets + 2, "evaluate": n_sets, "compare": n_sets, "ablation_reference": 1,
-                    "realism_ablation": 1, "report": 1, "all": 1}, jobs
+                    "realism_ablation": 1, "report": 1, "run_timeline": 1, "all": 1}, jobs
 
 
 def _job_counts(text: str) -> dict:

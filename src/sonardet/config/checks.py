@@ -221,7 +221,9 @@ def cross_checks(cfg: dict, validate) -> list[str]:
     out = _class_checks(cfg)
     if out:
         return out
-    out += _range_checks(cfg) + _packing_check(cfg) + _degenerate_checks(cfg)
+    out += _range_checks(cfg) + _packing_check(cfg)
+    if not out:  # the survey geometry needs sane ranges (a seabed below the transducer)
+        out += _degenerate_checks(cfg)
     ev = cfg["evaluation"]
     if ev["headline_m"] not in ev["dist_thresholds_m"]:
         out.append(f"evaluation.headline_m: {ev['headline_m']} is not one of evaluation.dist_thresholds_m "

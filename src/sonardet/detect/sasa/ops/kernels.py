@@ -26,9 +26,17 @@ and cached on disk (``cache=True``); FPS and the ball query are single-threaded.
 from __future__ import annotations
 
 import math
+import os
 
 import numba
 import numpy as np
+
+# Numba's default threading layer here is GNU OpenMP, whose threads do not survive a fork: a process
+# that ran a parallel kernel could then not fork tile workers (`sonardet detect --jobs`). The
+# workqueue layer is fork-safe and enough for the one parallel kernel (the weighted batch norm, called
+# from one thread). A layer chosen with NUMBA_THREADING_LAYER wins.
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    numba.config.THREADING_LAYER = "workqueue"
 
 __all__ = ["FPS_BLOCK", "fps_kernel", "ball_query_kernel", "grid_cell", "weighted_bn_relu_forward",
            "weighted_bn_relu_backward", "parallel_chunks"]
