@@ -74,7 +74,7 @@ def _detection(h, origin: np.ndarray, variant: str) -> dict | None:
         "pose": {"t": [float(v) for v in h.t + origin], "q": [float(v) for v in h.q]},
         "score": float(h.score),
         "extras": {"rmse_m": float(h.rmse_m), "fitness": float(h.fitness), "f_t": float(h.f_t),
-                   "f_s": float(h.f_s), "accepted": bool(getattr(h, "accepted", True)),
+                   "f_s": float(h.f_s), "g_h": float(h.g_h), "accepted": bool(getattr(h, "accepted", True)),
                    "round": int(h.round), "upright": bool(h.upright), "variant": variant},
     }
 

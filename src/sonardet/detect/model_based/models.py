@@ -48,6 +48,9 @@ class ClassModel:
     up_axes: np.ndarray = field(default_factory=lambda: np.array([[0.0, 0.0, 1.0]]))
     #: Tumbled poses to try on leftovers (its class spec's `tumble`).
     tumble: dict = field(default_factory=lambda: {"mode": "stable_poses"})
+    #: Median half thickness of the solid (m): half the distance from a surface point to the surface
+    #: across the material (a tetrapod leg's radius, half a wall); scales the shape tolerance.
+    half_thickness_m: float = 0.0
 
     @property
     def median_view_n(self) -> float:
@@ -80,6 +83,18 @@ class ClassModel:
         dn, i = self.surface_tree.query(p, k=1)
         dp = np.abs(np.einsum("ij,ij->i", p - self.surface[i], self.surface_normals[i]))
         return np.where(dn < 1.5 * self.surface_spacing_m, dp, dn)
+
+    def signed_distance(self, pts_canonical: np.ndarray) -> np.ndarray:
+        """Signed distance (m) of canonical-frame points (K,3) to the mesh surface: positive outside,
+        negative inside (by the outward normal of the nearest surface sample), with the magnitude of
+        :meth:`distance`."""
+        if len(pts_canonical) == 0:
+            return np.zeros(0)
+        p = np.asarray(pts_canonical, dtype=np.float64)
+        dn, i = self.surface_tree.query(p, k=1)
+        dot = np.einsum("ij,ij->i", p - self.surface[i], self.surface_normals[i])
+        mag = np.where(dn < 1.5 * self.surface_spacing_m, np.abs(dot), dn)
+        return np.where(dot < 0.0, -mag, mag)
 
     def inside(self, pts_canonical: np.ndarray) -> np.ndarray:
         """Boolean (K,) of canonical-frame points inside the (watertight) mesh."""
@@ -151,6 +166,7 @@ def build_class_model(templates, obj, surface_spacing_m: float) -> ClassModel:
     radius = float(np.max(np.hypot(v[:, 0], v[:, 1])))
     height = float(v[:, 2].max() - v[:, 2].min())
     ext = v.max(0) - v.min(0)
+    half = _half_thickness(rc, surface, normals)
     return ClassModel(
         cls=obj.cls, symmetry_order=int(obj.symmetry_order), vertices=v, faces=f, views=views,
         surface=surface, surface_normals=normals, radius_m=radius, height_m=height,
@@ -162,4 +178,17 @@ def build_class_model(templates, obj, surface_spacing_m: float) -> ClassModel:
                    "yaw_rad": np.asarray(templates.yaw_rad, dtype=np.float64),
                    "direction": np.asarray(templates.direction)},
         up_axes=np.asarray(obj.up_axes, dtype=np.float64).reshape(-1, 3), tumble=dict(obj.tumble),
+        half_thickness_m=half,
     )
+
+
+def _half_thickness(raycaster, surface: np.ndarray, normals: np.ndarray, max_samples: int = 4000) -> float:
+    """Median half thickness (m) of a solid: from (at most max_samples, evenly strided) surface samples,
+    rays into the material (against the outward normal) to the surface across it."""
+    step = max(1, len(surface) // max_samples)
+    rays = np.empty((len(surface[::step]), 6), dtype=np.float32)
+    rays[:, :3] = surface[::step] - 1e-4 * normals[::step]
+    rays[:, 3:] = -normals[::step]
+    t = raycaster.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+    t = t[np.isfinite(t)]
+    return float(0.5 * np.median(t)) if len(t) else 0.0

@@ -59,6 +59,9 @@ from .scoring import (
     new_fraction,
     rescore,
     score_hypothesis,
+    shape_tolerance_m,
+    support_overhangs,
+    tolerant_distance,
     view_points,
 )
 
@@ -283,10 +286,11 @@ def _score(st, k: OursClass, res, p, stats, occluders):
     model = k.model
     h = score_hypothesis(model, k.views, res.R, res.t, st.scene, p, per_class(p["rmse_max_m"], model.cls), occluders)
     h.fitness = res.fitness
-    # Plausibility: the object cannot be sunk into the seabed.
+    # Plausibility: the object cannot be sunk into the seabed (a model thicker than its object, within
+    # the shape tolerance, sits lower by as much: its surface matches the object's seen top).
     v = model.vertices[::int(p["sink_vertex_stride_n"])] @ res.R.T + res.t
     low = v[np.argmin(v[:, 2])]
-    if low[2] < float(st.ground.z_at(low[0], low[1])) - p["sink_max_m"]:
+    if low[2] < float(st.ground.z_at(low[0], low[1])) - p["sink_max_m"] - shape_tolerance_m(model, p):
         h.score = 0.0
         h.f_s = 0.0
     stats["seconds"]["scoring"] += time.perf_counter() - t
@@ -549,7 +553,7 @@ def _claim(st, h, classes, p):
     idx = _crop(st, h.t[:2], m.radius_m + p["claim_crop_margin_m"], only_active=True)
     if len(idx) == 0:
         return idx
-    d = m.distance((st.pts[idx] - h.t) @ h.R)
+    d = tolerant_distance(m, (st.pts[idx] - h.t) @ h.R, p)
     return idx[d < p["claim_m"]]
 
 
@@ -621,7 +625,7 @@ def _update_pending(st, classes, pending, accepted, gone, changed, p, stats, rms
                 pending[j] = ref
                 stats["refits"] += 1
                 continue
-        rescore(o, st.active, rmse_max[o.cls])
+        rescore(o, st.active, rmse_max[o.cls], p)
 
 
 def _select(st, classes, pending, accepted, p, stats):
@@ -634,6 +638,10 @@ def _select(st, classes, pending, accepted, p, stats):
     t = time.perf_counter()
     new_acc = []
     rmse_max = {c: per_class(p["rmse_max_m"], c) for c in classes}
+    if p["overhang_max_frac"] > 0:  # objects under others (piles, stacks) keep their score
+        support_overhangs(pending, len(st.active))
+        for h in pending:
+            rescore(h, st.active, rmse_max[h.cls], p)
     while pending:
         i = int(np.argmax([h.score for h in pending]))
         h = pending[i]

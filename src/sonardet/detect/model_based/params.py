@@ -82,6 +82,9 @@ DEFAULTS: dict = {
     "class_competition_m": 0.6,
     # Scoring.
     "inlier_m": 0.05,
+    "shape_tolerance_frac": 0.0,
+    "overhang_max_frac": 0.0,
+    "overhang_min_points_n": 5,
     "coverage_m": 0.08,
     "coverage_voxel_m": 0.1,
     "claim_m": 0.08,
@@ -263,6 +266,15 @@ DESCRIPTIONS: dict = {
     "class_competition_m": ("m", "radius of the class competition between proposals"),
     "n_yaw_init": ("-", "yaw starts per proposal for n-fold symmetric classes (spread over one period)"),
     "inlier_m": ("m", "scene point to mesh distance counted as explained by a hypothesis"),
+    "shape_tolerance_frac": ("-", "objects may be uniformly thicker or thinner than their model by this share of the "
+                                  "class's half thickness (a leg's radius, half a wall): the median signed distance of "
+                                  "the points near the surface, within that bound, is taken out before the inlier test "
+                                  "and the RMSE (0: off)"),
+    "overhang_max_frac": ("-", "gross height check: unexplained soundings above a hypothesis' box (within its "
+                               "footprint) lower its score in proportion to how far they rise, reaching 0 at this "
+                               "share of the box height: a 1.42 m class cannot label a 2.08 m object (0: off)"),
+    "overhang_min_points_n": ("-", "the height of the soundings above a box is that of its n-th highest point (robust "
+                                   "to single noise spikes)"),
     "coverage_m": ("m", "template point to scene distance counted as seen (template->scene fraction)"),
     "coverage_voxel_m": ("m", "voxel thinning the template views (and ray spacing of the virtual views of "
                                "tumbled poses) "

@@ -5,7 +5,20 @@ coordinates into it. Definitions (per hypothesis):
 
 * candidate points: object-candidate scene points (above the seabed) inside the posed evaluation box
   grown by `candidate_box_margin_m`;
-* inliers: candidates closer than `inlier_m` to the posed mesh (exact point-to-mesh distance);
+* inliers: candidates closer than `inlier_m` to the posed mesh, after the shape tolerance: real
+  objects are not their models (legs a third thinner or thicker, a fouling shell), so the signed
+  distances (outside +, inside -) may first be shifted by their median, bounded by
+  `shape_tolerance_frac` x the class's half thickness (0: off), i.e. the model is allowed to be
+  uniformly too thick or too thin by that much;
+* g_h (gross height): the class must agree with how tall the soundings show the object to be.
+  Unexplained candidate points above the posed box (within its footprint grown by
+  `candidate_box_margin_m`, up to `overhang_max_frac` x the box height above its top plus that
+  margin) are evidence of a taller object: with dz the height above that top of the
+  `overhang_min_points_n`-th highest of them, g_h = 1 - dz / (`overhang_max_frac` x box height),
+  clipped to [0, 1] (1 when fewer points or when off, frac 0). A small class fitted to the lower part
+  of a big object loses, while an object under another one (a pile, a ring stack) is not penalised:
+  points explained by an accepted object, or inliers of a pending hypothesis whose centre lies above
+  this box's top (`support_overhangs`), do not count;
 * f_s (scene -> model): inliers / candidates, both counted only over points not yet explained by an
   accepted object, so a clutter blob or a neighbour inside the box lowers it, while an object already
   accepted (the ring on top of this one) does not;
@@ -44,6 +57,16 @@ class Hypothesis:
     rmse_m: float = 1.0
     fitness: float = 0.0
     score: float = 0.0
+    #: How much thicker (+) or thinner (-) than its model the object appears (m; 0 without a shape tolerance).
+    shape_offset_m: float = 0.0
+    #: Gross height consistency in [0, 1] (module doc); over/over_dz: the candidate points above the box
+    #: and their heights (m) above its top (plus margin), so it follows what gets explained.
+    g_h: float = 1.0
+    over: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    over_dz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    over_range_m: float = 0.0
+    #: Which overhang points may count (False: an inlier of a hypothesis above this one).
+    over_free: np.ndarray | None = None
     cand: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     inl: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     upright: bool = True
@@ -153,11 +176,22 @@ def _asked(points: np.ndarray, occluders, params: dict) -> np.ndarray:
     return ~hidden_under(points, occluders, params["hidden_footprint_margin_m"], params["hidden_above_bottom_m"])
 
 
-def _coverage_upright(views: list, R, t, ltree: cKDTree, occluders, params: dict) -> float:
-    """f_t of an upright pose: best over the thinned template views (canonical, posed by R, t) of the share
-    of asked points with a scene point within coverage_m."""
+def _offset_along_normals(model, pts_canonical: np.ndarray, offset_m: float) -> np.ndarray:
+    """Canonical points moved by offset_m (m) along the outward normal of the nearest model surface
+    sample: where the surface of an object thicker (+) or thinner (-) than its model lies."""
+    if offset_m == 0.0 or len(pts_canonical) == 0:
+        return pts_canonical
+    _, i = model.surface_tree.query(pts_canonical, k=1)
+    return pts_canonical + offset_m * model.surface_normals[i]
+
+
+def _coverage_upright(model, views: list, R, t, ltree: cKDTree, occluders, params: dict,
+                      offset_m: float = 0.0) -> float:
+    """f_t of an upright pose: best over the thinned template views (canonical, moved by the shape offset
+    `offset_m` along their normals, posed by R, t) of the share of asked points with a scene point
+    within coverage_m."""
     cov = params["coverage_m"]
-    allv = np.concatenate(views) @ R.T + t
+    allv = _offset_along_normals(model, np.concatenate(views), offset_m) @ R.T + t
     dd, _ = ltree.query(allv, k=1, distance_upper_bound=cov)
     hit = np.isfinite(dd)
     asked = _asked(allv, occluders, params)
@@ -167,8 +201,9 @@ def _coverage_upright(views: list, R, t, ltree: cKDTree, occluders, params: dict
                      for a, b in zip(bounds[:-1], bounds[1:])))
 
 
-def _coverage_virtual(model, R, t, ltree: cKDTree, occluders, params: dict) -> float:
-    """f_t of a tumbled pose: best over the virtual views of the posed mesh (see `virtual_views`)."""
+def _coverage_virtual(model, R, t, ltree: cKDTree, occluders, params: dict, offset_m: float = 0.0) -> float:
+    """f_t of a tumbled pose: best over the virtual views of the posed mesh (see `virtual_views`), moved by
+    the shape offset `offset_m` along their normals."""
     cov = params["coverage_m"]
     floor = params["coverage_asked_min_frac"]
     dirs = view_directions(params["virtual_view_incidences_deg"], int(params["virtual_view_azimuths_n"]))
@@ -176,10 +211,86 @@ def _coverage_virtual(model, R, t, ltree: cKDTree, occluders, params: dict) -> f
     for pv in virtual_views(model, R, t, params["coverage_voxel_m"], dirs):
         if len(pv) < params["virtual_view_min_points_n"]:
             continue
+        if offset_m:
+            pv = _offset_along_normals(model, (pv - t) @ R, offset_m) @ R.T + t
         dd, _ = ltree.query(pv, k=1, distance_upper_bound=cov)
         asked = _asked(pv, occluders, params)
         best = max(best, float((np.isfinite(dd) & asked).sum() / max(asked.sum(), floor * len(pv), 1.0)))
     return best
+
+
+def _overhang(h: Hypothesis, scene: SceneIndex, near: np.ndarray, params: dict) -> None:
+    """Fill h.over, h.over_dz, h.over_range_m: the candidate points (of `near`) above h's box, within its
+    footprint grown by candidate_box_margin_m, up to overhang_max_frac x its height above its top plus
+    that margin (see the module doc); nothing when overhang_max_frac is 0."""
+    frac = float(params["overhang_max_frac"])
+    if frac <= 0:
+        return
+    box, margin = h.box, float(params["candidate_box_margin_m"])
+    top = box[2] + 0.5 * box[5] + margin
+    h.over_range_m = frac * float(box[5])
+    slab = np.array([box[0], box[1], top + 0.5 * h.over_range_m, box[3] + 2 * margin, box[4] + 2 * margin,
+                     h.over_range_m, box[6]])
+    h.over = near[points_in_box(scene.pts[near], slab)]
+    h.over_dz = scene.pts[h.over, 2] - top
+
+
+def height_consistency(h: Hypothesis, active: np.ndarray, params: dict) -> float:
+    """g_h of the module doc from h's overhang points still unexplained (`active`)."""
+    if h.over_range_m <= 0 or len(h.over) == 0:
+        return 1.0
+    free = active[h.over] if h.over_free is None else active[h.over] & h.over_free
+    dz = h.over_dz[free]
+    n = int(params["overhang_min_points_n"])
+    if len(dz) < n:
+        return 1.0
+    top_n = float(np.partition(dz, len(dz) - n)[len(dz) - n])
+    return float(np.clip(1.0 - top_n / h.over_range_m, 0.0, 1.0))
+
+
+def support_overhangs(hyps: list, n_points: int) -> None:
+    """Set `over_free` of every hypothesis in `hyps`: its overhang points that are inliers of another
+    hypothesis of `hyps` whose box centre lies above its box top do not count (the object above it in a
+    pile or a stack explains them). A taller object seen as a small class keeps its overhang, since no
+    hypothesis of that object has its centre above the small box's top. n_points: size of the candidate
+    point array the hypotheses index."""
+    support_z = np.full(n_points, -np.inf)
+    for h in hyps:
+        inl = h.cand[h.inl]
+        np.maximum.at(support_z, inl, float(h.box[2]))
+    for h in hyps:
+        if len(h.over):
+            top = float(h.box[2] + 0.5 * h.box[5])
+            h.over_free = support_z[h.over] <= top
+
+
+def shape_tolerance_m(model, params: dict) -> float:
+    """How much thicker or thinner (m) than its model an object of the model's class may be:
+    `shape_tolerance_frac` x the class's median half thickness (0 when off)."""
+    return max(0.0, float(params["shape_tolerance_frac"]) * float(model.half_thickness_m))
+
+
+def _shape_residual(model, pts_canonical: np.ndarray, params: dict) -> tuple[np.ndarray, float]:
+    """Distances (m, (K,)) of canonical points to the model surface, allowing the object to be uniformly
+    thicker or thinner than the model, and that offset (m, + thicker): with a shape tolerance tau
+    (`shape_tolerance_m`), the signed distances near the surface (within tau + inlier_m) are shifted by
+    their median, clipped to [-tau, tau]; without one, the plain distances and 0."""
+    tau = shape_tolerance_m(model, params)
+    if tau <= 0:
+        return model.distance(pts_canonical), 0.0
+    sd = model.signed_distance(pts_canonical)
+    near = np.abs(sd) < tau + params["inlier_m"]
+    offset = float(np.clip(np.median(sd[near]), -tau, tau)) if near.any() else 0.0
+    return np.abs(sd - offset), offset
+
+
+def tolerant_distance(model, pts_canonical: np.ndarray, params: dict) -> np.ndarray:
+    """Distance (m) of canonical points to the model surface less the shape tolerance (see
+    `_shape_residual`), at least 0: what an accepted object claims as its own (plain distance when
+    the tolerance is off)."""
+    tau = shape_tolerance_m(model, params)
+    d = model.distance(pts_canonical)
+    return np.maximum(d - tau, 0.0) if tau > 0 else d
 
 
 def score_hypothesis(model, views: list, R, t, scene: SceneIndex, params: dict, rmse_max_m: float,
@@ -205,7 +316,8 @@ def score_hypothesis(model, views: list, R, t, scene: SceneIndex, params: dict, 
     cand = near[inbox]
     if len(cand) == 0:
         return h
-    d = model.distance((scene.pts[cand] - t) @ R)
+    _overhang(h, scene, near, params)
+    d, h.shape_offset_m = _shape_residual(model, (scene.pts[cand] - t) @ R, params)
     inl = d < params["inlier_m"]
     h.cand, h.inl = cand, inl
     h.rmse_m = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else 1.0  # no inlier: 1 m, beyond any rmse_max
@@ -217,14 +329,14 @@ def score_hypothesis(model, views: list, R, t, scene: SceneIndex, params: dict, 
         local_pts = local_pts[np.abs(local_pts[:, 2] - box[2]) <= 0.5 * box[5] + params["coverage_z_band_m"]]
         if len(local_pts) > 0:
             ltree = cKDTree(local_pts)
-            h.f_t = (_coverage_upright(views, R, t, ltree, occluders, params) if h.upright
-                     else _coverage_virtual(model, R, t, ltree, occluders, params))
-    rescore(h, scene.active, rmse_max_m)
+            h.f_t = (_coverage_upright(model, views, R, t, ltree, occluders, params, h.shape_offset_m) if h.upright
+                     else _coverage_virtual(model, R, t, ltree, occluders, params, h.shape_offset_m))
+    rescore(h, scene.active, rmse_max_m, params)
     return h
 
 
-def rescore(h: Hypothesis, active: np.ndarray, rmse_max_m: float) -> float:
-    """Recompute f_s and the score of `h` given which candidate points are still unexplained."""
+def rescore(h: Hypothesis, active: np.ndarray, rmse_max_m: float, params: dict) -> float:
+    """Recompute f_s, g_h and the score of `h` given which candidate points are still unexplained."""
     if len(h.cand) == 0:
         h.f_s, h.score = 0.0, 0.0
         return 0.0
@@ -232,7 +344,8 @@ def rescore(h: Hypothesis, active: np.ndarray, rmse_max_m: float) -> float:
     n_act = int(a.sum())
     h.f_s = float((h.inl & a).sum() / n_act) if n_act else 0.0
     q = max(0.0, 1.0 - (h.rmse_m / rmse_max_m) ** 2)
-    h.score = float(h.f_t * h.f_s * q)
+    h.g_h = height_consistency(h, active, params)
+    h.score = float(h.f_t * h.f_s * q * h.g_h)
     return h.score
 
 

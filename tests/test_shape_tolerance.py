@@ -1,0 +1,110 @@
+"""The training-free detector on objects that differ from their models (gross geometry): a tetrapod
+with thinner or thicker legs at the same height, a fouling shell on every class.
+
+The objects come from `sonardet.objects.perturb` (the mismatch test set's perturbations) and are
+scanned with the project's own sonar model over a flat seabed, one object per scene. The checks use
+the detector with its shape tolerance and height check on (`shape_tolerance_frac`,
+`overhang_max_frac`), and unit checks of the two mechanisms.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sonardet.detect.model_based import detect
+from sonardet.detect.model_based.scoring import (
+    Hypothesis,
+    height_consistency,
+    shape_tolerance_m,
+    tolerant_distance,
+)
+from sonardet.objects import canonical_box
+from sonardet.objects.perturb import perturbed_object
+
+# The fixtures and scan helpers of the model-based tests (default objects, reduced template views).
+from test_model_based import accepted, cfg, objects, place, sensor, survey, templates  # noqa: F401
+
+pytestmark = pytest.mark.slow
+
+#: The detector with both mechanisms on (the values the mismatch_dev scenes were checked with).
+TOLERANT = {"shape_tolerance_frac": 0.35, "overhang_max_frac": 0.5}
+
+_TETRAPOD = dict(broken_leg=None, broken_frac=0.0, rounded=False, fouling_m=0.0, fouling_seed=1)
+CASES = [
+    ("tetrapod_b", dict(_TETRAPOD, leg_scale=0.65)),  # thin legs: as wide as a tetrapod_s, 0.66 m taller
+    ("tetrapod_b", dict(_TETRAPOD, leg_scale=1.35)),
+    ("tetrapod_s", dict(_TETRAPOD, leg_scale=1.35)),  # thick legs: as wide as a tetrapod_b, 0.66 m lower
+    ("tetrapod_s", dict(_TETRAPOD, leg_scale=0.65)),
+    ("tetrapod_b", dict(_TETRAPOD, leg_scale=1.0, fouling_m=0.05, fouling_seed=4)),
+    ("reef_cone", dict(top_scale=1.0, n_holes=30, hole_seed=3, fouling_m=0.05, fouling_seed=2)),
+    ("reef_ring", dict(n_ribs=6, wall_scale=1.0, fouling_m=0.05, fouling_seed=2)),
+]
+
+
+@pytest.mark.parametrize("cls,record", CASES, ids=[f"{c}-{'-'.join(f'{k}{v}' for k, v in r.items() if k in ('leg_scale', 'fouling_m'))}"
+                                                   for c, r in CASES])
+def test_an_object_unlike_its_model_keeps_its_class(cfg, objects, templates, sensor, cls, record):  # noqa: F811
+    obj = perturbed_object(cls, record, cfg["objects"], objects[cls])
+    t, q = place(obj, 7.0, 6.5, 0.7)
+    xyz = survey([(obj, t, q)], sensor)
+    truth = canonical_box(obj.mesh.vertices, t, q, obj.symmetry_order)
+    dets = accepted(detect(xyz, templates, objects, TOLERANT, "ours")[0])
+    assert [d["cls"] for d in dets] == [cls], [(d["cls"], round(d["score"], 3)) for d in dets]
+    assert np.linalg.norm(np.asarray(dets[0]["box"][:3]) - truth[:3]) < 0.3
+
+
+def test_the_tolerance_is_off_by_default_and_scales_with_the_class(objects, templates):  # noqa: F811
+    from sonardet.detect.model_based import DEFAULTS
+    from sonardet.detect.model_based.models import build_class_model
+
+    ring = build_class_model(templates["reef_ring"], objects["reef_ring"], 0.05)
+    tb = build_class_model(templates["tetrapod_b"], objects["tetrapod_b"], 0.05)
+    assert shape_tolerance_m(tb, DEFAULTS) == 0.0
+    # Half thicknesses measured on the meshes: a ring wall (9 and 6 cm) against a tetrapod leg's radius.
+    assert 0.02 < ring.half_thickness_m < 0.06 and 0.3 < tb.half_thickness_m < 0.6
+    p = dict(DEFAULTS, shape_tolerance_frac=0.35)
+    assert shape_tolerance_m(tb, p) == pytest.approx(0.35 * tb.half_thickness_m)
+    # A shell of points 5 cm outside the leg surface is within the tolerance; without it, 5 cm off.
+    pts = tb.surface[::50] + 0.05 * tb.surface_normals[::50]
+    assert np.median(tolerant_distance(tb, pts, DEFAULTS)) == pytest.approx(0.05, abs=0.01)
+    assert np.all(tolerant_distance(tb, pts, p) < 0.02)
+    # Signed distances: outside positive, inside negative.
+    assert np.median(tb.signed_distance(pts)) > 0 > np.median(tb.signed_distance(tb.surface[::50] - 0.05 * tb.surface_normals[::50]))
+
+
+def test_height_consistency_falls_with_the_height_of_unexplained_points():
+    h = Hypothesis("tetrapod_s", np.eye(3), np.zeros(3), np.zeros(7), over=np.arange(10), over_range_m=1.0)
+    params = {"overhang_min_points_n": 5}
+    active = np.ones(10, bool)
+    h.over_dz = np.full(10, 0.25)
+    assert height_consistency(h, active, params) == pytest.approx(0.75)
+    h.over_dz = np.r_[np.full(4, 2.0), np.zeros(6)]  # four spikes: fewer than n, ignored
+    assert height_consistency(h, active, params) == pytest.approx(1.0)
+    h.over_dz = np.full(10, 3.0)
+    assert height_consistency(h, active, params) == 0.0
+    active[:] = False  # explained by another object: no penalty
+    assert height_consistency(h, active, params) == 1.0
+    h.over_range_m = 0.0  # the check off
+    assert height_consistency(h, np.ones(10, bool), params) == 1.0
+
+
+def test_points_of_an_object_above_do_not_count_as_overhang():
+    from sonardet.detect.model_based.scoring import support_overhangs
+
+    # Candidate points 0-9 above a lower box (top at z = 1.0); points 0-5 are inliers of a hypothesis
+    # centred above that top (the ring on top of a stack), so only 6-9 count.
+    low = Hypothesis("reef_ring", np.eye(3), np.zeros(3), np.array([0, 0, 0.5, 2.7, 2.7, 1.0, 0]),
+                     over=np.arange(10), over_dz=np.full(10, 0.4), over_range_m=0.5,
+                     cand=np.arange(12), inl=np.ones(12, bool))
+    up = Hypothesis("reef_ring", np.eye(3), np.zeros(3), np.array([0, 0, 1.3, 2.7, 2.7, 0.75, 0]),
+                    cand=np.arange(6), inl=np.ones(6, bool))
+    # A taller object's hypothesis centred below the small box's top supports nothing.
+    tall = Hypothesis("tetrapod_b", np.eye(3), np.zeros(3), np.array([0, 0, 0.9, 2.0, 2.0, 2.0, 0]),
+                      cand=np.arange(6, 10), inl=np.ones(4, bool))
+    support_overhangs([low, up, tall], 12)
+    assert low.over_free.tolist() == [False] * 6 + [True] * 4
+    params = {"overhang_min_points_n": 5}
+    assert height_consistency(low, np.ones(12, bool), params) == 1.0  # 4 free points < n
+    params = {"overhang_min_points_n": 4}
+    assert height_consistency(low, np.ones(12, bool), params) == pytest.approx(0.2)
