@@ -3,8 +3,8 @@ with thinner or thicker legs at the same height, a fouling shell on every class.
 
 The objects come from `sonardet.objects.perturb` (the mismatch test set's perturbations) and are
 scanned with the project's own sonar model over a flat seabed, one object per scene. The checks use
-the detector with its shape tolerance and height check on (`shape_tolerance_frac`,
-`overhang_max_frac`), and unit checks of the two mechanisms.
+the detector's defaults (shape tolerance and height check on: `shape_tolerance_frac`,
+`overhang_max_frac`, `overhang_core_frac`), and unit checks of the two mechanisms.
 """
 
 from __future__ import annotations
@@ -27,8 +27,6 @@ from test_model_based import accepted, cfg, objects, place, sensor, survey, temp
 
 pytestmark = pytest.mark.slow
 
-#: The detector with both mechanisms on (the values the mismatch_dev scenes were checked with).
-TOLERANT = {"shape_tolerance_frac": 0.35, "overhang_max_frac": 0.5}
 
 _TETRAPOD = dict(broken_leg=None, broken_frac=0.0, rounded=False, fouling_m=0.0, fouling_seed=1)
 CASES = [
@@ -49,25 +47,27 @@ def test_an_object_unlike_its_model_keeps_its_class(cfg, objects, templates, sen
     t, q = place(obj, 7.0, 6.5, 0.7)
     xyz = survey([(obj, t, q)], sensor)
     truth = canonical_box(obj.mesh.vertices, t, q, obj.symmetry_order)
-    dets = accepted(detect(xyz, templates, objects, TOLERANT, "ours")[0])
+    dets = accepted(detect(xyz, templates, objects, None, "ours")[0])
     assert [d["cls"] for d in dets] == [cls], [(d["cls"], round(d["score"], 3)) for d in dets]
     assert np.linalg.norm(np.asarray(dets[0]["box"][:3]) - truth[:3]) < 0.3
 
 
-def test_the_tolerance_is_off_by_default_and_scales_with_the_class(objects, templates):  # noqa: F811
+def test_the_tolerance_scales_with_the_class(objects, templates):  # noqa: F811
     from sonardet.detect.model_based import DEFAULTS
     from sonardet.detect.model_based.models import build_class_model
 
     ring = build_class_model(templates["reef_ring"], objects["reef_ring"], 0.05)
     tb = build_class_model(templates["tetrapod_b"], objects["tetrapod_b"], 0.05)
-    assert shape_tolerance_m(tb, DEFAULTS) == 0.0
+    off = dict(DEFAULTS, shape_tolerance_frac=0.0)
+    assert shape_tolerance_m(tb, off) == 0.0
     # Half thicknesses measured on the meshes: a ring wall (9 and 6 cm) against a tetrapod leg's radius.
     assert 0.02 < ring.half_thickness_m < 0.06 and 0.3 < tb.half_thickness_m < 0.6
     p = dict(DEFAULTS, shape_tolerance_frac=0.35)
     assert shape_tolerance_m(tb, p) == pytest.approx(0.35 * tb.half_thickness_m)
+    assert shape_tolerance_m(ring, p) < 0.25 * shape_tolerance_m(tb, p)
     # A shell of points 5 cm outside the leg surface is within the tolerance; without it, 5 cm off.
     pts = tb.surface[::50] + 0.05 * tb.surface_normals[::50]
-    assert np.median(tolerant_distance(tb, pts, DEFAULTS)) == pytest.approx(0.05, abs=0.01)
+    assert np.median(tolerant_distance(tb, pts, off)) == pytest.approx(0.05, abs=0.01)
     assert np.all(tolerant_distance(tb, pts, p) < 0.02)
     # Signed distances: outside positive, inside negative.
     assert np.median(tb.signed_distance(pts)) > 0 > np.median(tb.signed_distance(tb.surface[::50] - 0.05 * tb.surface_normals[::50]))

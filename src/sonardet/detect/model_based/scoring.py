@@ -11,9 +11,10 @@ coordinates into it. Definitions (per hypothesis):
   `shape_tolerance_frac` x the class's half thickness (0: off), i.e. the model is allowed to be
   uniformly too thick or too thin by that much;
 * g_h (gross height): the class must agree with how tall the soundings show the object to be.
-  Unexplained candidate points above the posed box (within its footprint grown by
-  `candidate_box_margin_m`, up to `overhang_max_frac` x the box height above its top plus that
-  margin) are evidence of a taller object: with dz the height above that top of the
+  Unexplained candidate points above the posed box (within the central `overhang_core_frac` of its
+  footprint, where a taller object of the same kind rises and a pile neighbour rarely does, up to
+  `overhang_max_frac` x the box height above its top plus `candidate_box_margin_m`) are evidence of a
+  taller object: with dz the height above that top of the
   `overhang_min_points_n`-th highest of them, g_h = 1 - dz / (`overhang_max_frac` x box height),
   clipped to [0, 1] (1 when fewer points or when off, frac 0). A small class fitted to the lower part
   of a big object loses, while an object under another one (a pile, a ring stack) is not penalised:
@@ -220,17 +221,18 @@ def _coverage_virtual(model, R, t, ltree: cKDTree, occluders, params: dict, offs
 
 
 def _overhang(h: Hypothesis, scene: SceneIndex, near: np.ndarray, params: dict) -> None:
-    """Fill h.over, h.over_dz, h.over_range_m: the candidate points (of `near`) above h's box, within its
-    footprint grown by candidate_box_margin_m, up to overhang_max_frac x its height above its top plus
-    that margin (see the module doc); nothing when overhang_max_frac is 0."""
+    """Fill h.over, h.over_dz, h.over_range_m: the candidate points (of `near`) above h's box, within the
+    central overhang_core_frac of its footprint, up to overhang_max_frac x its height above its top plus
+    candidate_box_margin_m (see the module doc); nothing when overhang_max_frac is 0."""
     frac = float(params["overhang_max_frac"])
     if frac <= 0:
         return
     box, margin = h.box, float(params["candidate_box_margin_m"])
     top = box[2] + 0.5 * box[5] + margin
     h.over_range_m = frac * float(box[5])
-    slab = np.array([box[0], box[1], top + 0.5 * h.over_range_m, box[3] + 2 * margin, box[4] + 2 * margin,
-                     h.over_range_m, box[6]])
+    core = float(params["overhang_core_frac"])
+    slab = np.array([box[0], box[1], top + 0.5 * h.over_range_m, core * box[3], core * box[4], h.over_range_m,
+                     box[6]])
     h.over = near[points_in_box(scene.pts[near], slab)]
     h.over_dz = scene.pts[h.over, 2] - top
 
