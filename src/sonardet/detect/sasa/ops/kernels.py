@@ -220,6 +220,18 @@ def _column_grid(x, y, cell):
     return start, members, x0, y0, nx, ny
 
 
+@numba.njit(inline="always")
+def _dist2(x, y, z, i, qx, qy, qz):
+    """Squared distance of point i to the query, one rounding per operation in a fixed order (as the
+    PyTorch reference sums it), so the ball query's shells match it bit for bit."""
+    dx = qx - x[i]
+    dy = qy - y[i]
+    dz = qz - z[i]
+    d2 = dx * dx
+    d2 = d2 + dy * dy
+    return d2 + dz * dz
+
+
 @numba.njit(**_JIT)
 def _collect_hits(x, y, z, start, members, x0, y0, nx, ny, cell, qx, qy, qz, rmax2, buf):
     """Indices of the points with d^2 < rmax2 in the 3 x 3 columns around a query, sorted; count."""
@@ -231,12 +243,7 @@ def _collect_hits(x, y, z, start, members, x0, y0, nx, ny, cell, qx, qy, qz, rma
             c = cx * ny + cy
             for t in range(start[c], start[c + 1]):
                 i = members[t]
-                dx = qx - x[i]
-                dy = qy - y[i]
-                dz = qz - z[i]
-                d2 = dx * dx
-                d2 = d2 + dy * dy
-                d2 = d2 + dz * dz
+                d2 = _dist2(x, y, z, i, qx, qy, qz)
                 if d2 < rmax2:
                     buf[nh] = i
                     nh += 1
@@ -252,12 +259,7 @@ def _assign_shells(x, y, z, qx, qy, qz, buf, nh, r_in2, r_out2, nsamples, offset
     full = 0
     for t in range(nh):
         i = buf[t]
-        dx = qx - x[i]
-        dy = qy - y[i]
-        dz = qz - z[i]
-        d2 = dx * dx
-        d2 = d2 + dy * dy
-        d2 = d2 + dz * dz
+        d2 = _dist2(x, y, z, i, qx, qy, qz)
         for s in range(S):
             if got[s] < nsamples[s] and d2 >= r_in2[s] and d2 < r_out2[s]:
                 out[offsets[s] + got[s]] = i
