@@ -12,7 +12,6 @@ Frames and units: metres in the working CRS (the input's, or the UTM zone of geo
 
 from __future__ import annotations
 
-import logging
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -21,8 +20,6 @@ from sonardet.io.points import PointCloud, iter_slices
 from sonardet.survey.outputs import OutputPaths, SurveyMeta, write_survey_outputs
 from sonardet.survey.source import SurveyCloud, SurveySource, read_survey
 from sonardet.survey.tiling import check_jobs, detect_survey, plan_tiles
-
-log = logging.getLogger(__name__)
 
 __all__ = ["DetectRun", "SurveyDetection", "detect_survey_file"]
 
