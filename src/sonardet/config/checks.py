@@ -31,7 +31,7 @@ def _range_checks(cfg: dict) -> list[str]:
     if sc["seabed"]["mean_depth_m"] >= sc["survey"]["transducer_z_m"]:
         out.append(f"scenes.seabed.mean_depth_m: {sc['seabed']['mean_depth_m']} m is not below the transducer "
                    f"(scenes.survey.transducer_z_m = {sc['survey']['transducer_z_m']} m)")
-    for key in ("n_objects", "n_rocks", "scatter_fraction", "cone_gap_m", "big_spacing_m", "rock_size_m"):
+    for key in ("n_objects", "n_rocks", "scatter_fraction", "cone_gap_m", "big_spacing_m", "rock_size_m", "dump_n"):
         lo, hi = sc[key]
         if lo > hi:
             out.append(f"scenes.{key}: [min, max] with min {lo} > max {hi}")

@@ -4,14 +4,17 @@ Each class has the arrangement it has on the real reef (Nienhagen; the `arrangem
 sonardet.objects.classes), used for a share of a scene's objects; the rest are scattered at random:
 - cluster (reef_cone): clusters on a hexagonal grid with gaps of cone_gap_m between bases;
 - stack (reef_ring, two layers) and pile (tetrapod_s, up to three layers): rows, each layer over the
-  gaps of the one below;
+  gaps of the one below; a share ``scenes.dump_fraction`` of the piles is instead *dumped*: 15-20
+  (``scenes.dump_n``) elements with random 3-D orientations poured one above the other into a ring
+  fence (:class:`Fence`) that the physics removes once they rest, so the pile slumps
+  (sonardet.sim.scene.settle_dumps);
 - spaced (tetrapod_b): single elements big_spacing_m apart;
 - scatter: none (scattered only).
 
 Positions are in the scene frame (m). A spawn is the pose of the canonical frame before dropping:
 its z is set so that the body's lowest point clears the seabed (or the layer below) by spawn_gap_m.
-Footprints never overlap at spawn (layers of a pile are stacked vertically instead), so physics
-starts without interpenetration.
+Footprints never overlap at spawn (layers of a pile are stacked vertically instead; the bounding
+spheres of a dumped pile's elements are disjoint), so physics starts without interpenetration.
 """
 
 from __future__ import annotations
@@ -25,9 +28,21 @@ from ..objects import classes
 
 
 @dataclass
+class Fence:
+    """The ring fence a dumped pile is poured into: centre (x, y) m, inner radius_m, height_m above
+    the seabed at the centre; the physics keeps it only until the pile rests."""
+
+    x: float
+    y: float
+    radius_m: float
+    height_m: float
+
+
+@dataclass
 class Spawn:
     """One body to drop: class, canonical-frame pose (t (3,), q (4,) w,x,y,z), arrangement name,
-    group index (-1 for scattered) and layer (0 = bottom)."""
+    group index (-1 for scattered) and layer (0 = bottom); fence: the ring fence of a dumped pile's
+    element (None otherwise)."""
 
     cls: str
     t: np.ndarray
@@ -35,6 +50,13 @@ class Spawn:
     arrangement: str
     group: int
     layer: int
+    fence: Fence | None = None
+
+
+#: Share of a dumped pile's layer area its elements fill (sets the fence radius from the count).
+DUMP_PACKING = 0.5
+#: Free space kept around a fence (m): the fence wall and the slump when it is removed.
+FENCE_CLEARANCE_M = 1.0
 
 
 class _Occupancy:
@@ -150,6 +172,62 @@ class _Planner:
             n_group -= placed
         return n_group
 
+    def piles(self, cls: str, n_group: int) -> int:
+        """Piles of `cls`: each group dumped into a fence with probability scenes.dump_fraction, else
+        rows (:meth:`rows`, one group of up to pile_max). Returns how many could not be placed."""
+        frac = float(self.cfg["dump_fraction"])
+        if frac <= 0:  # no draw at all: layouts without dumps are those of the rows alone
+            return self.rows(cls, n_group, "pile")
+        left = 0
+        while n_group > 0:
+            if self.rng.random() < frac:
+                lo, hi = self.cfg["dump_n"]
+                k = min(n_group, int(self.rng.integers(lo, hi + 1)))
+                left += self.dump(cls, k)
+            else:
+                k = min(n_group, self.cfg["pile_max"])
+                left += self.rows(cls, k, "pile")
+            n_group -= k
+        return left
+
+    def dump(self, cls: str, k: int) -> int:
+        """One pile of k elements poured into a ring fence: random 3-D orientations, random spots inside
+        the fence, each spawned at the lowest height where its bounding sphere clears the seabed and
+        every element poured before it (so they land one after another). The fence's radius holds
+        the pile in scenes.pile_layers[cls] layers at a packing of DUMP_PACKING. Returns 0, or k when
+        there is no room."""
+        r, cfg = self.radius_m[cls], self.cfg
+        layers = max(1, int(cfg["pile_layers"][cls]))
+        fence_r = max(1.5 * r, r * float(np.sqrt(k / (layers * DUMP_PACKING))))
+        c = self.random_centre(fence_r + FENCE_CLEARANCE_M)
+        if c is None:
+            return k
+        ground = self.ground_z(c[0], c[1])
+        fence = Fence(float(c[0]), float(c[1]), float(fence_r), float(layers * self.height_m[cls] + 0.5))
+        v = self.vertices[cls]
+        spheres: list[tuple[np.ndarray, float]] = []
+        for i in range(k):
+            q = random_quat(self.rng)
+            vr = v @ quat_to_matrix(q).T
+            mid = 0.5 * (vr.min(0) + vr.max(0))
+            rb = float(np.linalg.norm(vr - mid, axis=1).max())
+            rad, ang = (fence_r - rb) * np.sqrt(self.rng.random()), self.rng.uniform(0, 2 * np.pi)
+            rad = max(rad, 0.0)
+            xy = np.array([c[0] + rad * np.cos(ang), c[1] + rad * np.sin(ang)])
+            zc = max(ground, self.ground_z(*xy)) + rb + cfg["spawn_gap_m"]
+            for cen, rb2 in spheres:  # rise above every sphere this one would touch
+                d_xy = float(np.hypot(*(cen[:2] - xy)))
+                reach = rb + rb2 + cfg["spawn_gap_m"]
+                if d_xy < reach:
+                    zc = max(zc, cen[2] + np.sqrt(reach ** 2 - d_xy ** 2))
+            cen = np.array([xy[0], xy[1], zc])
+            spheres.append((cen, rb))
+            self.spawns.append(Spawn(cls, cen - mid, q, "pile", self.group, min(layers - 1, i * layers // k),
+                                     fence))
+        self.occ.add(c[0], c[1], fence_r + FENCE_CLEARANCE_M)
+        self.group += 1
+        return 0
+
     def spaced(self, cls: str, n_group: int) -> int:
         """Single objects at least big_spacing_m[0] apart where room allows; returns how many could not
         be placed."""
@@ -210,7 +288,9 @@ def plan_layout(counts: dict, radius_m: dict, height_m: dict, vertices: dict, ex
         arrangement = classes.get(cls).arrangement
         if n_group > 0 and arrangement == "cluster":
             n_scatter += plan.clusters(cls, n_group)
-        elif n_group > 0 and arrangement in ("stack", "pile"):
+        elif n_group > 0 and arrangement == "pile":
+            n_scatter += plan.piles(cls, n_group)
+        elif n_group > 0 and arrangement == "stack":
             n_scatter += plan.rows(cls, n_group, arrangement)
         elif n_group > 0 and arrangement == "spaced":
             n_scatter += plan.spaced(cls, n_group)

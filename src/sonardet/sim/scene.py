@@ -23,11 +23,11 @@ import numpy as np
 
 from .. import SCHEMA_VERSION
 from ..seeds import config_hash, derive_seed
-from ..geometry import quat_to_matrix
+from ..geometry import quat_from_yaw, quat_to_matrix
 from ..objects import ObjectInfo
 from ..objects.catalog import canonical_box
 from ..objects.perturb import draw_perturbation, perturbed_object
-from .layout import plan_layout
+from .layout import FENCE_CLEARANCE_M, Fence, plan_layout
 from .mbes import RaycastTarget, SensorConfig, Soundings, scan, survey_lines, swath_half_width_m
 from .effects import swath_margin_m
 from .effects.burial import bury_objects as bury_settled
@@ -202,6 +202,10 @@ def _place_rocks(scene_id: str, sc: dict, spawns, radius: dict, hf, rng: np.rand
     rocks, rock_meta = [], []
     spawn_xy = np.array([s.t[:2] for s in spawns]) if spawns else np.zeros((0, 2))
     spawn_r = np.array([radius[s.cls] for s in spawns])
+    fences = {id(s.fence): s.fence for s in spawns if s.fence is not None}
+    if fences:  # a dumped pile slumps beyond its elements' spawn spots: keep rocks off the whole fence
+        spawn_xy = np.vstack([spawn_xy, [[f.x, f.y] for f in fences.values()]])
+        spawn_r = np.concatenate([spawn_r, [f.radius_m + FENCE_CLEARANCE_M for f in fences.values()]])
     for k in range(n_rocks):
         size = float(np.exp(rng.uniform(np.log(sc["rock_size_m"][0]), np.log(sc["rock_size_m"][1]))))
         mesh = make_rock(size, rng)
@@ -239,8 +243,15 @@ def _settle_scene(scene_id: str, spawns, objects, hf, sc: dict, rng: np.random.G
     summary, remaining rocks); adds the physics timings to `timings`."""
     rock_bodies = [RigidBody(f"rock{k}", [np.asarray(m.vertices)], 1.0, pos, static=True)
                    for k, (m, pos) in enumerate(rocks)]
+    t0 = time.perf_counter()
+    gone = settle_dumps(scene_id, spawns, objects, hf, sc["physics"], rng, extent, own)
+    if gone is not None:
+        timings["dump_physics_s"] = time.perf_counter() - t0
     res, kept, removed, phys = settle_spawns(scene_id, spawns, objects, hf, sc["physics"], rng, extent, rock_bodies,
-                                             own)
+                                             own, skip=gone or {})
+    for k, t, q in kept:
+        if spawns[k].fence is not None:
+            spawns[k].layer = _dump_layer(_geometry(k, spawns, objects, own), t, q, hf)
     if res is not None:
         gone_rocks = {int(rb.name[4:]) for rb in res.removed if rb.name.startswith("rock")}
         for k in sorted(gone_rocks):
@@ -312,22 +323,85 @@ def _culled_target(hf, posed, rocks, rect) -> RaycastTarget:
     return RaycastTarget(meshes, ids)
 
 
+def _fence_bodies(fence: Fence, ground_z: float, tag: str, thickness_m: float = 0.2) -> list[RigidBody]:
+    """Static panels (boxes, m) in a ring around fence's inner radius, from 0.5 m below the seabed at
+    its centre (ground_z, m) to fence.height_m above it."""
+    n = max(12, int(np.ceil(2 * np.pi * fence.radius_m / 0.8)))
+    half_len = 1.1 * np.pi * (fence.radius_m + thickness_m) / n
+    z0, z1 = ground_z - 0.5, ground_z + fence.height_m
+    box = np.array([[x, y, z] for x in (-half_len, half_len) for y in (0.0, thickness_m) for z in (z0, z1)])
+    out = []
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        # the panel's local y points outward from the centre; its inner face lies on the radius
+        pos = [fence.x + fence.radius_m * np.cos(a), fence.y + fence.radius_m * np.sin(a), 0.0]
+        out.append(RigidBody(f"fence{tag}_{i}", [box], 1.0, pos, quat_from_yaw(a - 0.5 * np.pi), static=True))
+    return out
+
+
+def _dump_layer(obj: ObjectInfo, t, q, hf) -> int:
+    """Layer (0 = on the seabed) of a dumped pile's element at rest at (t (3,) m, q): how far the
+    middle of its posed bounds is raised above where it would be on the seabed (half its height), in
+    half object heights, rounded; 0-3. (Not its lowest point: a tetrapod on top of others often
+    reaches down to the seabed with one leg.)"""
+    v = np.asarray(obj.mesh.vertices) @ quat_to_matrix(q).T + t
+    mid = 0.5 * (v.min(0) + v.max(0))
+    half_h = 0.5 * float(np.ptp(obj.mesh.vertices[:, 2]))
+    raised = float(mid[2] - hf.height_at(mid[0], mid[1])) - half_h
+    return int(np.clip(np.floor(raised / half_h + 0.5), 0, 3))
+
+
+def settle_dumps(scene_id: str, spawns, objects: dict[str, ObjectInfo], hf, physics: dict,
+                 rng: np.random.Generator, bounds_xy, own=None) -> dict | None:
+    """Pour the dumped piles (spawns with a fence, sonardet.sim.layout) into their ring fences and let
+    them come to rest (MuJoCo, the `scenes.physics` settings, twice the time limit); the spawns of
+    those elements are updated in place to their resting poses, from which the scene's
+    settling (without the fences) lets each pile slump. Returns None when the scene has no dumped
+    pile, else {spawn index: reason} for the elements the physics removed here (logged)."""
+    dumped = [k for k, s in enumerate(spawns) if s.fence is not None]
+    if not dumped:
+        return None
+    fences = {}
+    for k in dumped:
+        fences.setdefault(id(spawns[k].fence), spawns[k].fence)
+    walls = [b for i, f in enumerate(fences.values()) for b in _fence_bodies(f, float(hf.height_at(f.x, f.y)), str(i))]
+    bodies = [RigidBody(f"o{k}", g.convex_parts, g.mass_kg, spawns[k].t, spawns[k].q)
+              for k, g in ((k, _geometry(k, spawns, objects, own)) for k in dumped)]
+    res = settle(bodies + walls, hf, rng=rng, max_time_s=2 * physics["max_time_s"], dt_s=physics["dt_s"],
+                 lin_vel_tol=physics["lin_vel_tol"], ang_vel_tol=physics["ang_vel_tol"],
+                 settle_window_s=physics["settle_window_s"], bounds_xy=bounds_xy, friction=physics["friction"],
+                 sleep=physics["sleep"])
+    for i, name in enumerate(res.names):
+        if name.startswith("o"):
+            sp = spawns[int(name[1:])]
+            sp.t, sp.q = np.asarray(res.pos[i], dtype=np.float64), np.asarray(res.quat[i], dtype=np.float64)
+    gone = {int(rb.name[1:]): rb.reason for rb in res.removed if rb.name.startswith("o")}
+    for k, reason in sorted(gone.items()):
+        log.warning("%s: removed o%d (%s) while pouring its dumped pile: %s", scene_id, k, spawns[k].cls, reason)
+    return gone
+
+
 def settle_spawns(scene_id: str, spawns, objects: dict[str, ObjectInfo], hf, physics: dict,
-                  rng: np.random.Generator, bounds_xy, static_bodies=(), own=None):
+                  rng: np.random.Generator, bounds_xy, static_bodies=(), own=None, skip: dict | None = None):
     """Drop the planned objects (bodies ``o{k}`` for spawn k) with MuJoCo onto the heightfield and the
-    static bodies, with the `scenes.physics` settings. Returns (settle result or None when there is
-    nothing to drop, kept [(spawn index, t (3,), q (4,))], removed [{cls, reason, arrangement}],
-    physics summary). Objects the physics removes are logged, never dropped silently."""
-    if not spawns:
-        return None, [], [], {"n_steps": 0, "sim_time_s": 0.0, "all_at_rest": True}
-    geo = [_geometry(k, spawns, objects, own) for k in range(len(spawns))]
-    bodies = [RigidBody(f"o{k}", g.convex_parts, g.mass_kg, s.t, s.q)
-              for k, (s, g) in enumerate(zip(spawns, geo))] + list(static_bodies)
+    static bodies, with the `scenes.physics` settings. skip: {spawn index: reason} of spawns already
+    removed (a dumped pile's pouring, :func:`settle_dumps`): not simulated, reported removed. Returns
+    (settle result or None when there is nothing to drop, kept [(spawn index, t (3,), q (4,))], removed
+    [{cls, reason, arrangement}], physics summary). Objects the physics removes are logged, never
+    dropped silently."""
+    skip = skip or {}
+    pre = [{"cls": spawns[k].cls, "reason": f"pouring: {r}", "arrangement": spawns[k].arrangement}
+           for k, r in sorted(skip.items())]
+    if len(skip) == len(spawns):
+        return None, [], pre, {"n_steps": 0, "sim_time_s": 0.0, "all_at_rest": True}
+    geo = {k: _geometry(k, spawns, objects, own) for k in range(len(spawns)) if k not in skip}
+    bodies = [RigidBody(f"o{k}", g.convex_parts, g.mass_kg, spawns[k].t, spawns[k].q)
+              for k, g in geo.items()] + list(static_bodies)
     res = settle(bodies, hf, rng=rng, max_time_s=physics["max_time_s"], dt_s=physics["dt_s"],
                  lin_vel_tol=physics["lin_vel_tol"], ang_vel_tol=physics["ang_vel_tol"],
                  settle_window_s=physics["settle_window_s"], bounds_xy=bounds_xy, friction=physics["friction"],
                  sleep=physics["sleep"])
-    removed = []
+    removed = pre
     for rb in res.removed:
         if not rb.name.startswith("o"):
             continue

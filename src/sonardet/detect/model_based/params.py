@@ -33,7 +33,7 @@ DEFAULTS: dict = {
     "proposal_nms_radius_frac": 0.4,
     "proposal_merge_m": 0.3,
     "proposal_vote_min_frac": 0.2,
-    "proposal_max_rounds_n": 3,
+    "proposal_max_rounds_n": 5,  # rounds stop earlier when one accepts nothing (3 before the dumped piles)
     "proposal_max_per_round_n": 1000,
     "proposal_min_points_frac": 0.15,
     "proposal_min_height_frac": 0.5,
@@ -98,6 +98,10 @@ DEFAULTS: dict = {
     "coverage_asked_min_frac": 0.2,
     "hidden_footprint_margin_m": 0.05,
     "hidden_above_bottom_m": 0.1,
+    # Crowds (dumped piles): unhit template points under observed ones are not asked for, chosen on dev,
+    # mismatch_dev and the dumped-pile scenes of benchmarks/dumped_piles.py (README "Piles"), never test.
+    "shadow_margin_m": 0.2,
+    "shadow_cell_m": 0.15,
     "upright_tilt_max_deg": 30.0,
     "virtual_view_incidences_deg": [0.0, 30.0, 50.0],
     "virtual_view_azimuths_n": 4,
@@ -297,6 +301,10 @@ DESCRIPTIONS: dict = {
     "hidden_footprint_margin_m": ("m", "a template point is hidden under an accepted object when inside its "
                                        "footprint grown by this ..."),
     "hidden_above_bottom_m": ("m", "... and no higher than this above its bottom"),
+    "shadow_margin_m": ("m", "a template point no scene point is near is not asked either when an observed "
+                             "point lies more than this above it within a shadow_cell_m cell or the 8 "
+                             "around (hidden by something seen, e.g. a neighbour in a pile; 0: off)"),
+    "shadow_cell_m": ("m", "cell of the highest-observed-point map of the shadow test (shadow_margin_m)"),
     "upright_tilt_max_deg": ("deg", "poses tilted less than this from resting are upright: scored against the "
                                     "template views; others against virtual views of the posed mesh"),
     "virtual_view_incidences_deg": ("deg", "virtual views of tumbled poses: look directions off nadir "

@@ -38,6 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
 from ...geometry import matrix_to_quat, points_in_box
@@ -177,6 +178,43 @@ def _asked(points: np.ndarray, occluders, params: dict) -> np.ndarray:
     return ~hidden_under(points, occluders, params["hidden_footprint_margin_m"], params["hidden_above_bottom_m"])
 
 
+class ShadowMap:
+    """Highest scene point (m) per `cell_m` xy cell around a hypothesis, for telling which of its template
+    points the sonar could not see because something observed lies above them (a neighbour in a pile,
+    a leg of another element): a template point is shadowed when a scene point in its cell or the 8
+    around it lies more than `margin_m` above it. A vertical line of sight is assumed (near-nadir beams;
+    an oblique beam that does reach the point gives it a scene point, and hit points are never excused)."""
+
+    def __init__(self, pts: np.ndarray, cell_m: float, margin_m: float):
+        self.cell, self.margin = float(cell_m), float(margin_m)
+        self.lo = pts[:, :2].min(0) - self.cell
+        ij = np.floor((pts[:, :2] - self.lo) / self.cell).astype(np.int64)
+        shape = ij.max(0) + 2
+        top = np.full(shape, -np.inf)
+        np.maximum.at(top, (ij[:, 0], ij[:, 1]), pts[:, 2])
+        self.top = ndi.maximum_filter(top, size=3, mode="constant", cval=-np.inf)
+
+    def shadowed(self, pts: np.ndarray) -> np.ndarray:
+        """Boolean (K,): points (K,3, m) lying more than margin_m below the highest scene point near them."""
+        ij = np.floor((pts[:, :2] - self.lo) / self.cell).astype(np.int64)
+        ok = np.all((ij >= 0) & (ij < np.array(self.top.shape)), axis=1)
+        out = np.zeros(len(pts), dtype=bool)
+        out[ok] = pts[ok, 2] < self.top[ij[ok, 0], ij[ok, 1]] - self.margin
+        return out
+
+
+def _excused(points: np.ndarray, hit: np.ndarray, shadow) -> np.ndarray:
+    """Boolean (K,): template points not hit and shadowed by observed points above them (none without a
+    shadow map)."""
+    if shadow is None:
+        return np.zeros(len(points), dtype=bool)
+    out = np.zeros(len(points), dtype=bool)
+    miss = ~hit
+    if miss.any():
+        out[miss] = shadow.shadowed(points[miss])
+    return out
+
+
 def _offset_along_normals(model, pts_canonical: np.ndarray, offset_m: float) -> np.ndarray:
     """Canonical points moved by offset_m (m) along the outward normal of the nearest model surface
     sample: where the surface of an object thicker (+) or thinner (-) than its model lies."""
@@ -187,22 +225,24 @@ def _offset_along_normals(model, pts_canonical: np.ndarray, offset_m: float) -> 
 
 
 def _coverage_upright(model, views: list, R, t, ltree: cKDTree, occluders, params: dict,
-                      offset_m: float = 0.0) -> float:
+                      offset_m: float = 0.0, shadow: ShadowMap | None = None) -> float:
     """f_t of an upright pose: best over the thinned template views (canonical, moved by the shape offset
     `offset_m` along their normals, posed by R, t) of the share of asked points with a scene point
-    within coverage_m."""
+    within coverage_m (points under accepted occluders or, unhit, in the shadow map's shadow are not
+    asked)."""
     cov = params["coverage_m"]
     allv = _offset_along_normals(model, np.concatenate(views), offset_m) @ R.T + t
     dd, _ = ltree.query(allv, k=1, distance_upper_bound=cov)
     hit = np.isfinite(dd)
-    asked = _asked(allv, occluders, params)
+    asked = _asked(allv, occluders, params) & ~_excused(allv, hit, shadow)
     bounds = np.cumsum([0] + [len(v) for v in views])
     floor = params["coverage_asked_min_frac"]
     return float(max((hit[a:b] & asked[a:b]).sum() / max(asked[a:b].sum(), floor * (b - a), 1.0)
                      for a, b in zip(bounds[:-1], bounds[1:])))
 
 
-def _coverage_virtual(model, R, t, ltree: cKDTree, occluders, params: dict, offset_m: float = 0.0) -> float:
+def _coverage_virtual(model, R, t, ltree: cKDTree, occluders, params: dict, offset_m: float = 0.0,
+                      shadow: ShadowMap | None = None) -> float:
     """f_t of a tumbled pose: best over the virtual views of the posed mesh (see `virtual_views`), moved by
     the shape offset `offset_m` along their normals."""
     cov = params["coverage_m"]
@@ -215,8 +255,9 @@ def _coverage_virtual(model, R, t, ltree: cKDTree, occluders, params: dict, offs
         if offset_m:
             pv = _offset_along_normals(model, (pv - t) @ R, offset_m) @ R.T + t
         dd, _ = ltree.query(pv, k=1, distance_upper_bound=cov)
-        asked = _asked(pv, occluders, params)
-        best = max(best, float((np.isfinite(dd) & asked).sum() / max(asked.sum(), floor * len(pv), 1.0)))
+        hit = np.isfinite(dd)
+        asked = _asked(pv, occluders, params) & ~_excused(pv, hit, shadow)
+        best = max(best, float((hit & asked).sum() / max(asked.sum(), floor * len(pv), 1.0)))
     return best
 
 
@@ -327,12 +368,15 @@ def score_hypothesis(model, views: list, R, t, scene: SceneIndex, params: dict, 
     # Coverage against the scene points (seabed included) around the object, in a small local tree.
     local = scene.all_tree_xy.query_ball_point(box[:2], reach + params["coverage_m"])
     if len(local) > 0:
-        local_pts = scene.all_xyz[np.sort(np.asarray(local, dtype=np.int64))]
-        local_pts = local_pts[np.abs(local_pts[:, 2] - box[2]) <= 0.5 * box[5] + params["coverage_z_band_m"]]
+        around = scene.all_xyz[np.sort(np.asarray(local, dtype=np.int64))]
+        local_pts = around[np.abs(around[:, 2] - box[2]) <= 0.5 * box[5] + params["coverage_z_band_m"]]
         if len(local_pts) > 0:
             ltree = cKDTree(local_pts)
-            h.f_t = (_coverage_upright(model, views, R, t, ltree, occluders, params, h.shape_offset_m) if h.upright
-                     else _coverage_virtual(model, R, t, ltree, occluders, params, h.shape_offset_m))
+            shadow = ShadowMap(around, params["shadow_cell_m"], params["shadow_margin_m"]) \
+                if params["shadow_margin_m"] > 0 else None
+            h.f_t = (_coverage_upright(model, views, R, t, ltree, occluders, params, h.shape_offset_m, shadow)
+                     if h.upright else
+                     _coverage_virtual(model, R, t, ltree, occluders, params, h.shape_offset_m, shadow))
     rescore(h, scene.active, rmse_max_m, params)
     return h
 

@@ -1,0 +1,79 @@
+"""Dumped piles: tetrapods poured into a ring fence that is removed once they rest (sonardet.sim.layout,
+sonardet.sim.scene.settle_dumps), and the config checks of the dump keys."""
+
+import numpy as np
+import pytest
+
+from sonardet.config import ConfigError, validate_config
+from sonardet.geometry import quat_to_matrix
+from sonardet.objects import build_object, object_info
+from sonardet.sim.layout import plan_layout
+from sonardet.sim.scene import class_geometry, simulate_scene
+
+DUMP = {
+    "seed": 3,
+    "objects": {"sections": 32},
+    "sensor": {"n_beams": 256},
+    "scenes": {"n_scenes": 2, "extent_m": [18, 18], "n_objects": [10, 10],
+               "class_mix": {"tetrapod_s": 1.0, "reef_ring": 0.0, "reef_cone": 0.0, "tetrapod_b": 0.0},
+               "scatter_fraction": [0.0, 0.0], "n_rocks": [2, 2], "dump_fraction": 1.0, "dump_n": [10, 10],
+               "physics": {"max_time_s": 6.0}},
+    "split": {"n_test": 1, "n_dev": 1},
+}
+
+
+@pytest.fixture(scope="module")
+def dumped():
+    with pytest.warns(Warning):  # the zero class weights are warned about
+        cfg = validate_config(DUMP)
+    objs = {c: object_info(build_object(c, cfg["objects"]), 2400.0) for c in cfg["classes"]}
+    return cfg, objs, simulate_scene("s0000", cfg, objs)
+
+
+def test_a_dumped_pile_is_one_group_in_layers(dumped):
+    _, _, scene = dumped
+    objs = scene.meta["objects"]
+    assert not scene.meta["removed"], scene.meta["removed"]
+    assert len(objs) == 10 and {o["arrangement"] for o in objs} == {"pile"}
+    assert len({o["group"] for o in objs}) == 1
+    layers = [o["layer"] for o in objs]
+    assert min(layers) == 0 and max(layers) >= 1, layers  # some rest on others after the slump
+    assert "dump_physics_s" in scene.meta["timings_s"]
+    # the fence is gone: every non-seabed sounding belongs to an object or a rock, none floats in the air
+    centres = np.array([o["box"][:2] for o in objs])
+    spread = np.hypot(*(centres - centres.mean(0)).T).max()
+    assert spread < 6.0, spread  # still one heap, not scattered over the scene
+
+
+def test_dumped_spawns_start_apart_and_tumbled(dumped):
+    cfg, objs, _ = dumped
+    verts, radius, height = class_geometry(objs)
+    spawns, unplaced = plan_layout({"tetrapod_s": 10}, radius, height, verts, (0, 18, 0, 18), cfg["scenes"],
+                                   lambda x, y: 0.0, np.random.default_rng(1))
+    assert not unplaced and len(spawns) == 10
+    fence = spawns[0].fence
+    assert fence is not None and all(s.fence is fence for s in spawns)
+    # bounding spheres disjoint at spawn, every element inside the fence, orientations not all upright
+    v = verts["tetrapod_s"]
+    cen, rad = [], []
+    for s in spawns:
+        w = v @ quat_to_matrix(s.q).T + s.t
+        mid = 0.5 * (w.min(0) + w.max(0))
+        cen.append(mid)
+        rad.append(np.linalg.norm(w - mid, axis=1).max())
+        assert np.hypot(mid[0] - fence.x, mid[1] - fence.y) <= fence.radius_m + 1e-9
+        assert w[:, 2].min() > 0.0  # above the (flat) seabed
+    cen, rad = np.array(cen), np.array(rad)
+    d = np.linalg.norm(cen[:, None] - cen[None], axis=2) + np.eye(10) * 1e9
+    assert np.all(d >= rad[:, None] + rad[None] - 1e-9)
+    tilts = [np.degrees(np.arccos(np.clip(quat_to_matrix(s.q)[2, 2], -1, 1))) for s in spawns]
+    assert max(tilts) > 20
+
+
+def test_no_dump_keeps_the_rows():
+    cfg = validate_config({"scenes": {"dump_fraction": 0.0}})
+    assert cfg["scenes"]["dump_n"] == [15, 20]
+    with pytest.raises(ConfigError, match="scenes.dump_n"):
+        validate_config({"scenes": {"dump_n": [20, 15]}})
+    with pytest.raises(ConfigError, match="dump_fraction"):
+        validate_config({"scenes": {"dump_fraction": 1.5}})
