@@ -389,7 +389,8 @@ def test_epochs_are_chosen_on_the_dev_scenes(tmp_path):
     train_set = [make_scene(tmp_path, f"s{i:04d}", i, CLASSES[:2]) for i in range(2)]
     dev = [make_scene(tmp_path, f"d{i:04d}", 10 + i, CLASSES[:2]) for i in range(2)]
     params = {**TINY, "classes": CLASSES, "epochs": 8, "lr": 0.002, "val_every_epochs": 1,
-              "early_stop_patience": 2, "early_stop_min_delta": 0.5}  # an impossible gain: stops after 3 evals
+              "early_stop_patience": 2, "early_stop_min_delta": 0.5,  # an impossible gain: stops after 3 evals
+              "early_stop_min_epoch_frac": 0.0}
     out = tmp_path / "run"
     summary = train(train_set, dev, params, out)
     rows = (out / "loss.csv").read_text().splitlines()
@@ -403,6 +404,9 @@ def test_epochs_are_chosen_on_the_dev_scenes(tmp_path):
     # Resuming a finished, early-stopped run trains nothing more.
     again = train(train_set, dev, params, out)
     assert again["epochs"] == 3 and again["steps"] == summary["steps"]
+    # No stop while the one-cycle LR is high: not before early_stop_min_epoch_frac of the cap.
+    late = train(train_set, dev, {**params, "early_stop_min_epoch_frac": 0.5}, tmp_path / "late")
+    assert late["epochs"] == 4 and late["stopped_early"] and late["best_epoch"] == 1
 
 
 @pytest.mark.slow

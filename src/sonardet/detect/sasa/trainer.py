@@ -491,7 +491,7 @@ def _evaluate_epoch(model, val_scenes, val_paths, params: dict, device, run: _Pr
                     epochs: int) -> None:
     """Every `val_every_epochs` epochs (and after the last): the dev mAP into `row`, the best model
     kept, and early stopping decided (`early_stop_patience` evaluations without a dev mAP better by
-    `early_stop_min_delta`)."""
+    `early_stop_min_delta`, from epoch `early_stop_min_epoch_frac` x the cap on)."""
     every = int(params.get("val_every_epochs") or 0)
     epoch = int(row["epoch"])
     if not (val_scenes and every and (epoch % every == 0 or epoch == epochs)):
@@ -504,7 +504,10 @@ def _evaluate_epoch(model, val_scenes, val_paths, params: dict, device, run: _Pr
     else:
         run.bad_evals += 1
         patience = int(params.get("early_stop_patience") or 0)
-        if patience and run.bad_evals >= patience and epoch < epochs:
+        # Not while the one-cycle LR is still high: the dev mAP then swings by ~0.1 between
+        # evaluations and a stop keeps a model the annealing would have improved.
+        settled = epoch >= float(params.get("early_stop_min_epoch_frac", 0.0)) * epochs
+        if patience and settled and run.bad_evals >= patience and epoch < epochs:
             run.stopped_epoch = epoch
 
 
