@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib import colormaps
 
 from .style import new_figure, write_figure
 
@@ -126,9 +127,12 @@ def plot_gantt(df: pd.DataFrame, out_png, cores: int, title: str = "workflow run
             lanes_end[i] = r.end
         lane.append(i)
     rules = list(dict.fromkeys(df["rule"]))
-    cmap = {r: f"C{k % 10}" for k, r in enumerate(rules)}
+    # tab20 then tab20b: distinct colours for up to 40 rules (C0-C9 repeat after 10, and the training
+    # and the detection jobs, the two longest kinds, came out in the same brown)
+    palette = [colormaps["tab20"](i) for i in range(20)] + [colormaps["tab20b"](i) for i in range(20)]
+    cmap = {r: palette[k % len(palette)] for k, r in enumerate(rules)}
     chain = set(blocking_chain(df)["job"]) if len(df) else set()
-    fig = new_figure(10.0, 1.2 + 0.35 * max(len(lanes_end), 1))
+    fig = new_figure(10.0, 1.2 + 0.35 * max(len(lanes_end), 1) + 0.14 * math.ceil(len(rules) / 4))
     ax = fig.subplots()
     for r, ln in zip(df.itertuples(), lane):
         ax.barh(ln, (r.end - r.start) / 60.0, left=(r.start - t0) / 60.0, color=cmap[r.rule], height=0.8,
@@ -140,5 +144,6 @@ def plot_gantt(df: pd.DataFrame, out_png, cores: int, title: str = "workflow run
                                           for i in range(len(lanes_end))])
     ax.set_xlabel("minutes since the first job started")
     ax.set_title(f"{title}: {len(df)} jobs; outlined: the blocking chain")
-    ax.legend(fontsize=6, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.25), frameon=False)
+    ax.legend(fontsize=6, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.3),
+              frameon=False)
     return write_figure(fig, out_png)
