@@ -94,10 +94,9 @@ def main() -> None:
     out = Path(a.out) if a.out else results / "benchmarks" / "dumped_piles"
     print(f"{len(ids)} dumped-pile scene(s) under {out}; {os.cpu_count()} CPU(s), load {os.getloadavg()}", flush=True)
     make_scenes(cfg, objects, ids, out)
-    gt = {}
-    for sid in ids:
-        meta = json.loads((out / f"{sid}.json").read_text())
-        gt[sid] = [o for o in meta["objects"] if o.get("visible", True)]
+    gt = {sid: [o for o in json.loads((out / f"{sid}.json").read_text())["objects"] if o.get("visible", True)]
+          for sid in ids}
+    points = {sid: read_scene_points(out / f"{sid}.npz")["xyz"] for sid in ids}
     members = [(s, o) for s, objs in gt.items() for o in objs if o.get("arrangement") == "pile"]
     sizes = sorted(Counter((s, o["group"]) for s, o in members).values())
     layers = dict(sorted(Counter(int(o.get("layer", 0)) for _, o in members).items()))
@@ -109,7 +108,7 @@ def main() -> None:
         dets, secs = {}, []
         for sid in ids:
             t = time.perf_counter()
-            found, _ = det(read_scene_points(out / f"{sid}.npz")["xyz"])
+            found, _ = det(points[sid])
             secs.append(time.perf_counter() - t)
             dets[sid] = [d for d in found if (d.get("extras") or {}).get("accepted", True)]
         whole = evaluate(gt, dets, classes, ev["dist_thresholds_m"], ev["headline_m"], min_recall=ev["min_recall"],

@@ -211,8 +211,8 @@ class _Planner:
             vr = v @ quat_to_matrix(q).T
             mid = 0.5 * (vr.min(0) + vr.max(0))
             rb = float(np.linalg.norm(vr - mid, axis=1).max())
-            rad, ang = (fence_r - rb) * np.sqrt(self.rng.random()), self.rng.uniform(0, 2 * np.pi)
-            rad = max(rad, 0.0)
+            rad = max(fence_r - rb, 0.0) * np.sqrt(self.rng.random())
+            ang = self.rng.uniform(0, 2 * np.pi)
             xy = np.array([c[0] + rad * np.cos(ang), c[1] + rad * np.sin(ang)])
             zc = max(ground, self.ground_z(*xy)) + rb + cfg["spawn_gap_m"]
             for cen, rb2 in spheres:  # rise above every sphere this one would touch

@@ -202,10 +202,10 @@ def _place_rocks(scene_id: str, sc: dict, spawns, radius: dict, hf, rng: np.rand
     rocks, rock_meta = [], []
     spawn_xy = np.array([s.t[:2] for s in spawns]) if spawns else np.zeros((0, 2))
     spawn_r = np.array([radius[s.cls] for s in spawns])
-    fences = {id(s.fence): s.fence for s in spawns if s.fence is not None}
+    fences = _fences(spawns)
     if fences:  # a dumped pile slumps beyond its elements' spawn spots: keep rocks off the whole fence
-        spawn_xy = np.vstack([spawn_xy, [[f.x, f.y] for f in fences.values()]])
-        spawn_r = np.concatenate([spawn_r, [f.radius_m + FENCE_CLEARANCE_M for f in fences.values()]])
+        spawn_xy = np.vstack([spawn_xy, [[f.x, f.y] for f in fences]])
+        spawn_r = np.concatenate([spawn_r, [f.radius_m + FENCE_CLEARANCE_M for f in fences]])
     for k in range(n_rocks):
         size = float(np.exp(rng.uniform(np.log(sc["rock_size_m"][0]), np.log(sc["rock_size_m"][1]))))
         mesh = make_rock(size, rng)
@@ -323,6 +323,28 @@ def _culled_target(hf, posed, rocks, rect) -> RaycastTarget:
     return RaycastTarget(meshes, ids)
 
 
+def _fences(spawns) -> list[Fence]:
+    """The distinct fences of the dumped piles among the spawns, in spawn order."""
+    return list({id(s.fence): s.fence for s in spawns if s.fence is not None}.values())
+
+
+def _bodies(spawns, indices, objects: dict[str, ObjectInfo], own=None) -> list[RigidBody]:
+    """Rigid bodies ``o{k}`` of the spawns k in `indices`, at their spawn poses."""
+    out = []
+    for k in indices:
+        g = _geometry(k, spawns, objects, own)
+        out.append(RigidBody(f"o{k}", g.convex_parts, g.mass_kg, spawns[k].t, spawns[k].q))
+    return out
+
+
+def _settle(bodies, hf, physics: dict, rng: np.random.Generator, bounds_xy, max_time_s: float):
+    """:func:`settle` with the `scenes.physics` settings and the time limit max_time_s (s)."""
+    return settle(bodies, hf, rng=rng, max_time_s=max_time_s, dt_s=physics["dt_s"],
+                  lin_vel_tol=physics["lin_vel_tol"], ang_vel_tol=physics["ang_vel_tol"],
+                  settle_window_s=physics["settle_window_s"], bounds_xy=bounds_xy, friction=physics["friction"],
+                  sleep=physics["sleep"])
+
+
 def _fence_bodies(fence: Fence, ground_z: float, tag: str, thickness_m: float = 0.2) -> list[RigidBody]:
     """Static panels (boxes, m) in a ring around fence's inner radius, from 0.5 m below the seabed at
     its centre (ground_z, m) to fence.height_m above it."""
@@ -361,16 +383,9 @@ def settle_dumps(scene_id: str, spawns, objects: dict[str, ObjectInfo], hf, phys
     dumped = [k for k, s in enumerate(spawns) if s.fence is not None]
     if not dumped:
         return None
-    fences = {}
-    for k in dumped:
-        fences.setdefault(id(spawns[k].fence), spawns[k].fence)
-    walls = [b for i, f in enumerate(fences.values()) for b in _fence_bodies(f, float(hf.height_at(f.x, f.y)), str(i))]
-    bodies = [RigidBody(f"o{k}", g.convex_parts, g.mass_kg, spawns[k].t, spawns[k].q)
-              for k, g in ((k, _geometry(k, spawns, objects, own)) for k in dumped)]
-    res = settle(bodies + walls, hf, rng=rng, max_time_s=2 * physics["max_time_s"], dt_s=physics["dt_s"],
-                 lin_vel_tol=physics["lin_vel_tol"], ang_vel_tol=physics["ang_vel_tol"],
-                 settle_window_s=physics["settle_window_s"], bounds_xy=bounds_xy, friction=physics["friction"],
-                 sleep=physics["sleep"])
+    walls = [b for i, f in enumerate(_fences(spawns)) for b in _fence_bodies(f, float(hf.height_at(f.x, f.y)), str(i))]
+    res = _settle(_bodies(spawns, dumped, objects, own) + walls, hf, physics, rng, bounds_xy,
+                  2 * physics["max_time_s"])
     for i, name in enumerate(res.names):
         if name.startswith("o"):
             sp = spawns[int(name[1:])]
@@ -394,13 +409,8 @@ def settle_spawns(scene_id: str, spawns, objects: dict[str, ObjectInfo], hf, phy
            for k, r in sorted(skip.items())]
     if len(skip) == len(spawns):
         return None, [], pre, {"n_steps": 0, "sim_time_s": 0.0, "all_at_rest": True}
-    geo = {k: _geometry(k, spawns, objects, own) for k in range(len(spawns)) if k not in skip}
-    bodies = [RigidBody(f"o{k}", g.convex_parts, g.mass_kg, spawns[k].t, spawns[k].q)
-              for k, g in geo.items()] + list(static_bodies)
-    res = settle(bodies, hf, rng=rng, max_time_s=physics["max_time_s"], dt_s=physics["dt_s"],
-                 lin_vel_tol=physics["lin_vel_tol"], ang_vel_tol=physics["ang_vel_tol"],
-                 settle_window_s=physics["settle_window_s"], bounds_xy=bounds_xy, friction=physics["friction"],
-                 sleep=physics["sleep"])
+    bodies = _bodies(spawns, [k for k in range(len(spawns)) if k not in skip], objects, own) + list(static_bodies)
+    res = _settle(bodies, hf, physics, rng, bounds_xy, physics["max_time_s"])
     removed = pre
     for rb in res.removed:
         if not rb.name.startswith("o"):

@@ -206,11 +206,9 @@ class ShadowMap:
 def _excused(points: np.ndarray, hit: np.ndarray, shadow) -> np.ndarray:
     """Boolean (K,): template points not hit and shadowed by observed points above them (none without a
     shadow map)."""
-    if shadow is None:
-        return np.zeros(len(points), dtype=bool)
     out = np.zeros(len(points), dtype=bool)
     miss = ~hit
-    if miss.any():
+    if shadow is not None and miss.any():
         out[miss] = shadow.shadowed(points[miss])
     return out
 
