@@ -50,8 +50,36 @@ def build_results(cfg: dict, root: Path) -> None:
         write_templates(root / "templates" / f"{cls}.npz", tv)
 
 
-def cast_survey(cfg: dict, results: Path, extent_m: float, n_objects: int, seed: int) -> np.ndarray:
-    """Soundings (N, 3) in UTM metres of an extent_m x extent_m survey with n_objects objects on the seabed."""
+def place_objects(radii_m: np.ndarray, extent_m: float, gap_m: float | None, rng) -> np.ndarray:
+    """Centres (len(radii_m), 2) in [3, extent_m - 3] m: independent uniform draws when gap_m is None,
+    else rejection sampling so that no two objects' footprint circles (radius radii_m) come closer than
+    gap_m (ValueError naming --objects when the extent cannot hold them after 200 tries per object)."""
+    n = len(radii_m)
+    if gap_m is None:
+        return rng.uniform(3.0, extent_m - 3.0, (n, 2))
+    cell = 2.0 * float(np.max(radii_m, initial=0.0)) + gap_m
+    grid: dict[tuple[int, int], list[int]] = {}
+    out = np.zeros((n, 2))
+    for k in range(n):
+        for _ in range(200):
+            c = rng.uniform(3.0, extent_m - 3.0, 2)
+            ci, cj = (int(v // cell) for v in c)
+            near = [m for di in (-1, 0, 1) for dj in (-1, 0, 1) for m in grid.get((ci + di, cj + dj), ())]
+            if all(np.hypot(*(c - out[m])) >= radii_m[k] + radii_m[m] + gap_m for m in near):
+                break
+        else:
+            raise ValueError(f"--objects {n}: no room for object {k} on {extent_m:g} m x {extent_m:g} m with "
+                             f"{gap_m:g} m gaps; ask for fewer objects or a larger extent")
+        out[k] = c
+        grid.setdefault((ci, cj), []).append(k)
+    return out
+
+
+def cast_survey(cfg: dict, results: Path, extent_m: float, n_objects: int, seed: int,
+                gap_m: float | None = None) -> tuple[np.ndarray, list]:
+    """An extent_m x extent_m survey with n_objects objects on the seabed (classes in turn, random yaw;
+    placed independently, or `gap_m` apart: `place_objects`): soundings (N, 3) in UTM metres and the
+    objects as (class, [x, y, z] of the mesh origin in UTM metres, yaw in rad)."""
     from sonardet.geometry import quat_from_yaw, quat_to_matrix
     from sonardet.objects import read_object
     from sonardet.sim.mbes import RaycastTarget, SensorConfig, scan, survey_lines
@@ -61,18 +89,25 @@ def cast_survey(cfg: dict, results: Path, extent_m: float, n_objects: int, seed:
     sensor = SensorConfig.from_dict(cfg["sensor"])
     hf = make_seabed((extent_m, extent_m), cell_m=0.2, mean_depth_m=-11.5, slope_deg=1.5, amplitude_m=0.1, rng=rng)
     classes = list(cfg["classes"])
+    objs = {c: read_object(results / "objects" / f"{c}.json") for c in classes}
+    order = [classes[k % len(classes)] for k in range(n_objects)]
+    radii = np.array([float(np.max(np.hypot(*np.asarray(objs[c].mesh.vertices)[:, :2].T))) for c in order])
+    yaws = rng.uniform(0, 2 * np.pi, n_objects) if gap_m is not None else None
+    centres = place_objects(radii, extent_m, gap_m, rng) if gap_m is not None else None
     meshes = [(hf.vertices(), hf.faces())]
-    for k in range(n_objects):
-        o = read_object(results / "objects" / f"{classes[k % len(classes)]}.json")
-        v = np.asarray(o.mesh.vertices) @ quat_to_matrix(quat_from_yaw(rng.uniform(0, 2 * np.pi))).T
-        x, y = rng.uniform(3.0, extent_m - 3.0, 2)
+    placed = []
+    for k, c in enumerate(order):
+        yaw = rng.uniform(0, 2 * np.pi) if yaws is None else yaws[k]
+        v = np.asarray(objs[c].mesh.vertices) @ quat_to_matrix(quat_from_yaw(yaw)).T
+        x, y = centres[k] if centres is not None else rng.uniform(3.0, extent_m - 3.0, 2)
         base = v[:, 2] < v[:, 2].min() + 0.05
         z = float(np.max(hf.height_at(v[base, 0] + x, v[base, 1] + y))) - v[:, 2].min()
-        meshes.append((v + [x, y, z], np.asarray(o.mesh.faces)))
+        meshes.append((v + [x, y, z], np.asarray(objs[c].mesh.faces)))
+        placed.append((c, [float(x + UTM[0]), float(y + UTM[1]), float(z + UTM[2])], float(yaw)))
     traj = survey_lines((0, extent_m, 0, extent_m), "x", 0.0, 11.5, 0.3, sensor, run_in_m=1.0)
     xyz = scan(RaycastTarget(meshes), traj, sensor, np.random.default_rng(seed + 1)).xyz
     inside = np.all((xyz[:, :2] >= 0) & (xyz[:, :2] <= extent_m), axis=1)
-    return xyz[inside] + UTM
+    return xyz[inside] + UTM, placed
 
 
 def run_detect(survey: Path, results: Path, out: Path, tile_m: float, jobs: int) -> tuple[float, str]:
@@ -118,7 +153,7 @@ def main():
             build_results(cfg, results)
             print(f"object models and reduced templates built in {time.perf_counter() - t:.1f} s")
         t = time.perf_counter()
-        xyz = cast_survey(cfg, results, args.extent_m, args.objects, args.seed)
+        xyz, _ = cast_survey(cfg, results, args.extent_m, args.objects, args.seed)
         survey = tmp / "survey.npz"
         write_points(survey, PointCloud(xyz, crs="EPSG:32610"))
         print(f"survey: {len(xyz)} soundings over {args.extent_m:g} m x {args.extent_m:g} m, {args.objects} objects, "

@@ -108,3 +108,17 @@ def test_points_of_an_object_above_do_not_count_as_overhang():
     assert height_consistency(low, np.ones(12, bool), params) == 1.0  # 4 free points < n
     params = {"overhang_min_points_n": 4}
     assert height_consistency(low, np.ones(12, bool), params) == pytest.approx(0.2)
+
+
+def test_template_views_move_along_the_normals_of_their_nearest_surface_samples(objects, templates):  # noqa: F811
+    """The prepared views (scoring.TemplateViews) offset exactly as a per-hypothesis tree query would."""
+    from sonardet.detect.model_based.models import build_class_model
+    from sonardet.detect.model_based.scoring import TemplateViews, _offset_along_normals, view_points
+
+    tb = build_class_model(templates["tetrapod_b"], objects["tetrapod_b"], 0.05)
+    views = view_points(tb.views, 0.1)
+    tv = TemplateViews.of(tb, views)
+    assert len(tv.bounds) == len(views) + 1 and tv.bounds[-1] == len(tv.points)
+    for off in (-0.12, 0.0, 0.07):
+        assert np.array_equal(tv.points + off * tv.normals if off else tv.points,
+                              _offset_along_normals(tb, np.concatenate(views), off))

@@ -56,6 +56,7 @@ from .registration import SceneSource, SurfaceTarget, icp_scene_to_model
 from .scoring import (
     Hypothesis,
     SceneIndex,
+    TemplateViews,
     new_fraction,
     rescore,
     score_hypothesis,
@@ -127,14 +128,15 @@ class OursClass:
     model: the ClassModel; targets: (coarse, fine) ICP targets (the mesh surface sampled at two
     spacings); kernels: BEV kernels of the proposals (`proposals.class_kernels`); tumbled: rotations
     of the tumbled starts (`tumbled_rotations`; empty when `tumbled_inits` is off); views: the
-    template views thinned to `coverage_voxel_m` (the template->scene fraction of upright poses).
+    template views thinned to `coverage_voxel_m` with their surface normals (`scoring.TemplateViews`;
+    the template->scene fraction of upright poses).
     """
 
     model: ClassModel
     targets: tuple[SurfaceTarget, SurfaceTarget]
     kernels: list
     tumbled: list
-    views: list
+    views: TemplateViews
 
 
 def prepare_classes(models: dict[str, ClassModel], p: dict) -> dict[str, OursClass]:
@@ -146,7 +148,7 @@ def prepare_classes(models: dict[str, ClassModel], p: dict) -> dict[str, OursCla
             targets=(SurfaceTarget(m.coarse_surface, m.coarse_normals), SurfaceTarget(m.surface, m.surface_normals)),
             kernels=class_kernels(m, p["bev_cell_m"], p["bev_yaw_step_deg"]),
             tumbled=tumbled_rotations(m, p) if p["tumbled_inits"] else [],
-            views=view_points(m.views, p["coverage_voxel_m"]))
+            views=TemplateViews.of(m, view_points(m.views, p["coverage_voxel_m"])))
     return out
 
 

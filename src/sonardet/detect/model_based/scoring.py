@@ -104,6 +104,29 @@ def view_points(views: list, voxel_m: float) -> list:
     return out
 
 
+@dataclass
+class TemplateViews:
+    """A class's thinned template views prepared for coverage scoring (canonical frame, m): all points
+    (K,3) of the views one after another, the outward normal (K,3) of the model surface sample nearest
+    to each (fixed, since the views are: the shape offset of a hypothesis moves them along these
+    without a tree query per hypothesis), and the view boundaries (V+1,) in that array."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    bounds: np.ndarray
+
+    @classmethod
+    def of(cls, model, views: list) -> "TemplateViews":
+        """From `view_points` output and the class model (its surface samples and normals)."""
+        pts = np.concatenate(views) if views else np.zeros((0, 3))
+        if len(pts):
+            _, i = model.surface_tree.query(pts, k=1)
+            normals = model.surface_normals[i]
+        else:
+            normals = np.zeros((0, 3))
+        return cls(pts, normals, np.cumsum([0] + [len(v) for v in views]))
+
+
 def view_directions(incidences_deg, n_azimuth: int) -> np.ndarray:
     """Unit viewing directions (K,3), pointing down: one per incidence angle off nadir (deg; 0 = nadir,
     one direction) from `n_azimuth` evenly spread sides."""
@@ -222,18 +245,19 @@ def _offset_along_normals(model, pts_canonical: np.ndarray, offset_m: float) -> 
     return pts_canonical + offset_m * model.surface_normals[i]
 
 
-def _coverage_upright(model, views: list, R, t, ltree: cKDTree, occluders, params: dict,
+def _coverage_upright(views: TemplateViews, R, t, ltree: cKDTree, occluders, params: dict,
                       offset_m: float = 0.0, shadow: ShadowMap | None = None) -> float:
     """f_t of an upright pose: best over the thinned template views (canonical, moved by the shape offset
     `offset_m` along their normals, posed by R, t) of the share of asked points with a scene point
     within coverage_m (points under accepted occluders or, unhit, in the shadow map's shadow are not
     asked)."""
     cov = params["coverage_m"]
-    allv = _offset_along_normals(model, np.concatenate(views), offset_m) @ R.T + t
+    pts = views.points + offset_m * views.normals if offset_m else views.points
+    allv = pts @ R.T + t
     dd, _ = ltree.query(allv, k=1, distance_upper_bound=cov)
     hit = np.isfinite(dd)
     asked = _asked(allv, occluders, params) & ~_excused(allv, hit, shadow)
-    bounds = np.cumsum([0] + [len(v) for v in views])
+    bounds = views.bounds
     floor = params["coverage_asked_min_frac"]
     return float(max((hit[a:b] & asked[a:b]).sum() / max(asked[a:b].sum(), floor * (b - a), 1.0)
                      for a, b in zip(bounds[:-1], bounds[1:])))
@@ -334,11 +358,12 @@ def tolerant_distance(model, pts_canonical: np.ndarray, params: dict) -> np.ndar
     return np.maximum(d - tau, 0.0) if tau > 0 else d
 
 
-def score_hypothesis(model, views: list, R, t, scene: SceneIndex, params: dict, rmse_max_m: float,
+def score_hypothesis(model, views: TemplateViews, R, t, scene: SceneIndex, params: dict, rmse_max_m: float,
                      occluders=()) -> Hypothesis:
     """Score the pose (R (3,3), t (3,) m: canonical -> local scene frame) of `model` against `scene`.
 
-    views: the class's template views thinned to coverage_voxel_m (`view_points`), for upright poses.
+    views: the class's template views thinned to coverage_voxel_m (`view_points`, prepared by
+    `TemplateViews.of`), for upright poses.
     rmse_max_m: the class's RMSE limit (m). occluders: boxes [x,y,z,l,w,h,yaw] of accepted objects;
     template points hidden under them are not asked for (f_t counts only the others). Returns a
     Hypothesis with the scores filled in (score 0 when no candidate point exists); the thresholds are
@@ -372,7 +397,7 @@ def score_hypothesis(model, views: list, R, t, scene: SceneIndex, params: dict, 
             ltree = cKDTree(local_pts)
             shadow = ShadowMap(around, params["shadow_cell_m"], params["shadow_margin_m"]) \
                 if params["shadow_margin_m"] > 0 else None
-            h.f_t = (_coverage_upright(model, views, R, t, ltree, occluders, params, h.shape_offset_m, shadow)
+            h.f_t = (_coverage_upright(views, R, t, ltree, occluders, params, h.shape_offset_m, shadow)
                      if h.upright else
                      _coverage_virtual(model, R, t, ltree, occluders, params, h.shape_offset_m, shadow))
     rescore(h, scene.active, rmse_max_m, params)
