@@ -50,6 +50,16 @@ def build_results(cfg: dict, root: Path) -> None:
         write_templates(root / "templates" / f"{cls}.npz", tv)
 
 
+def models_folder(cfg: dict, results: Path | None, tmp: Path) -> Path:
+    """`results` when it holds objects/ and templates/, else tmp/results with both built here (printed)."""
+    if results is not None and (results / "templates").is_dir():
+        return results
+    t = time.perf_counter()
+    build_results(cfg, tmp / "results")
+    print(f"object models and reduced templates built in {time.perf_counter() - t:.1f} s")
+    return tmp / "results"
+
+
 def place_objects(radii_m: np.ndarray, extent_m: float, gap_m: float | None, rng) -> np.ndarray:
     """Centres (len(radii_m), 2) in [3, extent_m - 3] m: independent uniform draws when gap_m is None,
     else rejection sampling so that no two objects' footprint circles (radius radii_m) come closer than
@@ -146,12 +156,7 @@ def main():
     cfg = read_config(args.config)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        results = args.results
-        if results is None or not (results / "templates").is_dir():
-            results = tmp / "results"
-            t = time.perf_counter()
-            build_results(cfg, results)
-            print(f"object models and reduced templates built in {time.perf_counter() - t:.1f} s")
+        results = models_folder(cfg, args.results, tmp)
         t = time.perf_counter()
         xyz, _ = cast_survey(cfg, results, args.extent_m, args.objects, args.seed)
         survey = tmp / "survey.npz"

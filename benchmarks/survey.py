@@ -59,7 +59,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from detect_jobs import UTM, build_results, cast_survey  # benchmarks/detect_jobs.py
+from detect_jobs import UTM, cast_survey, models_folder  # benchmarks/detect_jobs.py
 
 REPO = Path(__file__).resolve().parent.parent
 CRS = "EPSG:32610"
@@ -230,7 +230,7 @@ def run_workflow(survey: Path, results: Path, work: Path, args) -> dict:
     cmd = [sys.executable, "-m", "snakemake", "results/surveys/bench/summary.json", "--cores", str(cores),
            "--rerun-triggers", "mtime", "--configfile", "bench.json"]
     t = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
+    proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t
     if proc.returncode != 0:
         raise SystemExit(f"the workflow failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
@@ -264,12 +264,7 @@ def main():
                  "cpus_visible": os.cpu_count(), "affinity": len(os.sched_getaffinity(0))}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        results = args.results
-        if results is None or not (results / "templates").is_dir():
-            results = tmp / "results"
-            t = time.perf_counter()
-            build_results(cfg, results)
-            print(f"object models and reduced templates built in {time.perf_counter() - t:.1f} s")
+        results = models_folder(cfg, args.results, tmp)
         if args.mosaic:
             survey, gt, n = mosaic_file(results, args.mosaic, args.mosaic_n, tmp)
             out.update(mosaic=args.mosaic, mosaic_n=args.mosaic_n)

@@ -9,7 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 
-from detect_jobs import place_objects  # noqa: E402
+from detect_jobs import place_objects
 
 
 def test_objects_keep_their_gap():

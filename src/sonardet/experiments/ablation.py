@@ -121,14 +121,16 @@ def _detect_scenes(method: Method, resources: Resources, scene_npzs, name: str) 
 
 def run_point(point: dict, method: Method, scene_npzs: list[str], scene_jsons: list[str], classes: list[str],
               evaluation: dict, object_jsons: list[str], resources: Resources, work_dir: str | Path,
-              train_npzs: list[str] | None = None) -> dict:
+              train_npzs: list[str] | None = None, other_sets: dict | None = None) -> dict:
     """Run one ablation point's method (see :func:`point_method`) on the scenes (`scene_npzs`,
     labels `scene_jsons`).
 
     A trained method is first trained on `train_npzs` into work_dir/model (train_time_s reported).
     seconds_per_scene: per-scene methods, the detector's wall time per scene (file reads excluded);
     per-dataset methods, their mean inference time per scene. Returns {name, method, params,
-    fraction, n_scenes, train_time_s, mAP, AP, n_pred, n_gt, seconds_per_scene, seconds_per_scene_max}.
+    fraction, n_scenes, train_time_s, mAP, AP, n_pred, n_gt, seconds_per_scene, seconds_per_scene_max},
+    plus, with `other_sets` (set name -> (scene npzs, scene jsons), e.g. the mismatch dev set), the
+    same model's {mAP, AP, n_pred, n_gt, n_scenes} on each under "other_sets".
     """
     work_dir = Path(work_dir)
     out = {"name": point["name"], "method": point["method"], "params": point.get("params", {}),
@@ -143,6 +145,10 @@ def run_point(point: dict, method: Method, scene_npzs: list[str], scene_jsons: l
     out.update(_evaluate(_ground_truth(scene_jsons), dets, classes, evaluation, object_jsons))
     out["seconds_per_scene"] = float(np.mean(secs))
     out["seconds_per_scene_max"] = float(np.max(secs))
+    for set_name, (npzs, jsons) in (other_sets or {}).items():
+        dets, _ = _detect_scenes(method, resources, npzs, f"{point['name']} on {set_name}")
+        out.setdefault("other_sets", {})[set_name] = {
+            **_evaluate(_ground_truth(jsons), dets, classes, evaluation, object_jsons), "n_scenes": len(npzs)}
     return out
 
 

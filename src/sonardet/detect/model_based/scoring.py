@@ -116,7 +116,7 @@ class TemplateViews:
     bounds: np.ndarray
 
     @classmethod
-    def of(cls, model, views: list) -> "TemplateViews":
+    def of(cls, model, views: list) -> TemplateViews:
         """From `view_points` output and the class model (its surface samples and normals)."""
         pts = np.concatenate(views) if views else np.zeros((0, 3))
         if len(pts):

@@ -133,6 +133,19 @@ elements 0.75-2.1 m tall and 2-2.7 m wide (reef_ring 2.7 x 2.7 x 0.75-0.9 m, ree
     nadir, overlaps double the density, the vessel speed varies. (Only relative density matters: the
     ``n_points`` sample of a scene's kept points spans the same surfaces at any global density.)
 
+  - ``dr_shape_prob`` (0, off: an option measured on dev, README "Objects unlike their models"),
+    ``dr_shape_offset_frac`` 0.35, ``dr_shape_half_thickness_m`` (per class), ``dr_shape_fouling_m``
+    [0, 0.05], ``dr_shape_wavelength_m`` [0.5, 2]: real elements are not their models (legs a third
+    thinner or thicker, a fouling shell; the mismatch test set). With this probability an object's
+    sampled points move along their surface normal (PCA of their 8 nearest points of the same object,
+    turned to point up, toward the sensor: a near-nadir survey sees an object's outside from above)
+    by a thickness offset U(-f, f) x the class's half thickness (tetrapod leg radius, half a wall:
+    measured on the meshes, ``models.ClassModel.half_thickness_m``), plus a fouling shell U(range)
+    thick, uneven (times 0.5 + 0.5 sin of a random plane wave of the wavelength range). Points whose
+    normal is nearly horizontal (|n_z| < 0.2, a wall seen from the side: which side is outside is
+    unknown without the sensor position) move by the shell only. Boxes stay (the label is the
+    object, not its model), the height feature moves with z.
+
   With the other effects the ``n_points`` sample is drawn with these weights (without replacement).
   Cost, measured on real training scenes (286k soundings, 26k-34k kept; batch 4, one busy core):
   ``_make_batch`` takes ~11 ms per step without and ~55 ms with domain randomisation (~11 ms per
@@ -236,6 +249,11 @@ DEFAULTS: dict = {
     "dr_dropout_blobs": [0, 6],              # elliptic missing-data blobs per scene (count)
     "dr_dropout_radius_m": [0.3, 1.5],       # semi-major axis of a blob (m); aspect 1-3
     "dr_density_contrast": [1.0, 3.0],       # max/min ratio of a smooth sampling-density field (unitless, >= 1)
+    "dr_shape_prob": 0.0,                    # share of objects whose seen surface is reshaped (0: off; docstring)
+    "dr_shape_offset_frac": 0.35,            # thicker/thinner by up to this x the class half thickness
+    "dr_shape_half_thickness_m": {"reef_ring": 0.045, "reef_cone": 0.075, "tetrapod_s": 0.31, "tetrapod_b": 0.44},
+    "dr_shape_fouling_m": [0.0, 0.05],       # thickness of an uneven fouling shell on a reshaped object (m)
+    "dr_shape_wavelength_m": [0.5, 2.0],     # wavelength of the shell's unevenness (m)
     # ---- inference ----
     "score_thresh": 0.1,                     # drop boxes below this score before NMS
     "nms_mode": "3d",                        # "3d" (rotated BEV x vertical overlap) or "bev"
@@ -371,6 +389,12 @@ def resolve_params(params: dict | None = None, base: dict | None = None) -> dict
     _check(0.0 <= float(out["dr_line_overlap"]) <= 1.0, "dr_line_overlap", "must be in [0, 1]")
     _check(0.0 <= float(out["dr_burial_prob"]) <= 1.0, "dr_burial_prob", "must be in [0, 1]")
     _check(float(out["dr_line_spacing_m"][0]) > 0, "dr_line_spacing_m", "must be > 0")
+    _check(0.0 <= float(out["dr_shape_prob"]) <= 1.0, "dr_shape_prob", "must be in [0, 1]")
+    _check(0.0 <= float(out["dr_shape_offset_frac"]) < 1.0, "dr_shape_offset_frac",
+           "must be in [0, 1): at 1 a thinner object would have no thickness left")
+    ht = out["dr_shape_half_thickness_m"]
+    _check(isinstance(ht, dict) and all(c in ht and float(ht[c]) > 0 for c in classes), "dr_shape_half_thickness_m",
+           f"needs a half thickness > 0 (m) for every class ({', '.join(classes)}), got {ht!r}")
     return out
 
 
@@ -392,6 +416,8 @@ _DR_RANGES = (
     ("dr_dropout_blobs", 0, None, True),
     ("dr_dropout_radius_m", 0.0, None, False),
     ("dr_density_contrast", 1.0, None, False),
+    ("dr_shape_fouling_m", 0.0, None, False),
+    ("dr_shape_wavelength_m", 1e-3, None, False),
 )
 
 

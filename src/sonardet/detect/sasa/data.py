@@ -328,7 +328,11 @@ def augment(xyz: np.ndarray, height: np.ndarray, label: np.ndarray, boxes: np.nd
 #: One random stream per effect (children of one draw per scene): changing one effect's range leaves
 #: the realisation of every other effect unchanged.
 DR_STREAMS = ("burial", "outliers", "leak", "density", "dropout", "sample", "zfield", "lines", "noise",
-              "roughness")
+              "roughness", "shape")
+#: Neighbours (of the same object) whose PCA gives a point's normal in the shape effect.
+DR_SHAPE_NEIGHBOURS = 8
+#: Normals flatter than this (|n_z|) get the fouling shell only: which side is outside is unknown.
+DR_SHAPE_MIN_NZ = 0.2
 #: Half the swath angle (deg; a 130 deg swath): the smile is flat beyond the swath edge.
 DR_HALF_SWATH_DEG = 65.0
 #: Number and wavelength range (m) of the waves of the smooth sampling-density field.
@@ -515,7 +519,9 @@ def domain_randomise(scene: PreparedScene, params: dict, rng: np.random.Generato
     7. range noise: z and height += N(0, sigma^2), sigma ~ U(``dr_range_noise_m``) (the sensor's
        range noise: ``noise.range_noise_dz``);
     8. roughness: object points (label >= 0) move by N(0, sigma^2) per axis, sigma ~ U(``dr_roughness_m``)
-       (roughness: ``roughness_point_offsets``).
+       (roughness: ``roughness_point_offsets``);
+    9. shape (``dr_shape_prob`` > 0): objects drawn with that probability get thicker or thinner and a
+       fouling shell: their points move along their upward surface normals (:func:`dr_shape_offsets`).
 
     Generated points never fall inside a gt box footprint grown by ``DR_BOX_MARGIN_M``. All random
     numbers come from ``rng`` (one draw per scene, then one child stream per effect).
@@ -535,6 +541,7 @@ def domain_randomise(scene: PreparedScene, params: dict, rng: np.random.Generato
     _dr_lines(st, params, g["lines"])
     _dr_noise(st, params, g["noise"])
     _dr_roughness(st, params, g["roughness"])
+    _dr_shape(st, scene, params, g["shape"])
     return DomainRandomised(st.xyz.astype(np.float32), st.h.astype(np.float32), st.label,
                             st.boxes.astype(np.float32), st.axis.astype(np.float32), st.src, st.draws)
 
@@ -757,6 +764,63 @@ def _dr_roughness(st: _DRState, params: dict, r: np.random.Generator) -> None:
     st.xyz[obj] += d[obj]
     st.h[obj] += d[obj, 2]
     st.draws["roughness_sigma_m"] = sigma
+
+
+def upward_normals(xyz: np.ndarray, k: int = DR_SHAPE_NEIGHBOURS) -> np.ndarray:
+    """Unit surface normals (n, 3) of points (n, 3) of one object (m): the least-variance axis of each
+    point's k nearest points (itself included), turned so that n_z >= 0. Fewer than 3 points: +z."""
+    n = len(xyz)
+    out = np.tile([0.0, 0.0, 1.0], (n, 1))
+    if n < 3:
+        return out
+    from scipy.spatial import cKDTree
+
+    _, nb = cKDTree(xyz).query(xyz, k=min(k, n))
+    q = xyz[nb] - xyz[nb].mean(axis=1, keepdims=True)
+    _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", q, q))
+    out = vec[:, :, 0]
+    return np.where(out[:, 2:3] < 0, -out, out)
+
+
+def dr_shape_offsets(xyz: np.ndarray, thickness_m: float, fouling_m: float, wave: np.ndarray,
+                     phase_rad: float) -> np.ndarray:
+    """Displacements (n, 3, m) of one object's points (n, 3): along their upward normals
+    (:func:`upward_normals`) by `thickness_m` (+ thicker, - thinner) where |n_z| >= DR_SHAPE_MIN_NZ,
+    plus an uneven fouling shell `fouling_m` x (0.5 + 0.5 sin(wave . p + phase_rad)) (wave: (3,)
+    wave vector, rad/m)."""
+    nrm = upward_normals(xyz)
+    foul = fouling_m * (0.5 + 0.5 * np.sin(xyz @ wave + phase_rad))
+    d = np.where(np.abs(nrm[:, 2]) >= DR_SHAPE_MIN_NZ, thickness_m, 0.0) + foul
+    return d[:, None] * nrm
+
+
+def _dr_shape(st: _DRState, scene: PreparedScene, params: dict, r: np.random.Generator) -> None:
+    """9. Objects unlike their models: thicker/thinner and fouled (``dr_shape_*``; off at probability 0)."""
+    prob = float(params["dr_shape_prob"])
+    K = len(st.boxes)
+    st.draws["shape_offset_m"] = np.zeros(K)
+    if prob <= 0 or K == 0:
+        return
+    classes = list(params["classes"])
+    half = np.array([float(params["dr_shape_half_thickness_m"][classes[c]]) for c in scene.cls])
+    on = r.random(K) < prob
+    frac = float(params["dr_shape_offset_frac"])
+    thick = np.where(on, r.uniform(-frac, frac, K) * half, 0.0)
+    foul = np.where(on, r.uniform(*map(float, params["dr_shape_fouling_m"]), K), 0.0)
+    lam = r.uniform(*map(float, params["dr_shape_wavelength_m"]), K)
+    direction = r.normal(size=(K, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    phase = r.uniform(0.0, 2.0 * math.pi, K)
+    oi = _object_index(st.label, scene.obj_id)
+    for k in np.flatnonzero(on):
+        idx = np.flatnonzero(oi == k)
+        if len(idx) == 0:
+            continue
+        d = dr_shape_offsets(st.xyz[idx], thick[k], foul[k], 2.0 * math.pi / lam[k] * direction[k], phase[k])
+        st.xyz[idx] += d
+        st.h[idx] += d[:, 2]
+    st.draws["shape_offset_m"] = thick
+    st.draws["shape_fouling_m"] = foul
 
 
 def collate(items: list[tuple], device) -> dict:
