@@ -89,7 +89,11 @@ def test_shape_parameters_are_validated():
         resolve_params({"dr_shape_prob": 1.5})
     with pytest.raises(ValueError, match="dr_shape_offset_frac"):
         resolve_params({"dr_shape_offset_frac": 1.0})
-    with pytest.raises(ValueError, match="dr_shape_half_thickness_m.*tetrapod_b"):
-        resolve_params({"dr_shape_half_thickness_m": {"reef_ring": 0.045, "reef_cone": 0.075, "tetrapod_s": 0.31}})
+    three = {"reef_ring": 0.045, "reef_cone": 0.075, "tetrapod_s": 0.31}
+    resolve_params({"dr_shape_half_thickness_m": three})  # not needed while the effect is off
+    with pytest.raises(ValueError, match="dr_shape_half_thickness_m.*missing: tetrapod_b"):
+        resolve_params({"dr_shape_half_thickness_m": three, "dr_shape_prob": 0.5})
+    with pytest.raises(ValueError, match="dr_shape_half_thickness_m"):
+        resolve_params({"dr_shape_half_thickness_m": {**three, "tetrapod_b": -0.1}})
     with pytest.raises(ValueError, match="dr_shape_fouling_m"):
         resolve_params({"dr_shape_fouling_m": [0.05, 0.0]})

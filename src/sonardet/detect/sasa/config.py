@@ -140,7 +140,8 @@ elements 0.75-2.1 m tall and 2-2.7 m wide (reef_ring 2.7 x 2.7 x 0.75-0.9 m, ree
     sampled points move along their surface normal (PCA of their 8 nearest points of the same object,
     turned to point up, toward the sensor: a near-nadir survey sees an object's outside from above)
     by a thickness offset U(-f, f) x the class's half thickness (tetrapod leg radius, half a wall:
-    measured on the meshes, ``models.ClassModel.half_thickness_m``), plus a fouling shell U(range)
+    measured on the meshes, ``models.ClassModel.half_thickness_m``; a plugin's class needs its value
+    here before the effect is switched on), plus a fouling shell U(range)
     thick, uneven (times 0.5 + 0.5 sin of a random plane wave of the wavelength range). Points whose
     normal is nearly horizontal (|n_z| < 0.2, a wall seen from the side: which side is outside is
     unknown without the sensor position) move by the shell only. Boxes stay (the label is the
@@ -393,8 +394,12 @@ def resolve_params(params: dict | None = None, base: dict | None = None) -> dict
     _check(0.0 <= float(out["dr_shape_offset_frac"]) < 1.0, "dr_shape_offset_frac",
            "must be in [0, 1): at 1 a thinner object would have no thickness left")
     ht = out["dr_shape_half_thickness_m"]
-    _check(isinstance(ht, dict) and all(c in ht and float(ht[c]) > 0 for c in classes), "dr_shape_half_thickness_m",
-           f"needs a half thickness > 0 (m) for every class ({', '.join(classes)}), got {ht!r}")
+    _check(isinstance(ht, dict) and all(float(v) > 0 for v in ht.values()), "dr_shape_half_thickness_m",
+           f"must map class names to half thicknesses > 0 (m), got {ht!r}")
+    if float(out["dr_shape_prob"]) > 0:  # only the shape effect needs them (a plugin class may leave it off)
+        missing = [c for c in classes if c not in ht]
+        _check(not missing, "dr_shape_half_thickness_m",
+               f"dr_shape_prob > 0 needs a half thickness (m) for every class; missing: {', '.join(missing)}")
     return out
 
 
