@@ -407,6 +407,10 @@ def test_epochs_are_chosen_on_the_dev_scenes(tmp_path):
     # No stop while the one-cycle LR is high: not before early_stop_min_epoch_frac of the cap.
     late = train(train_set, dev, {**params, "early_stop_min_epoch_frac": 0.5}, tmp_path / "late")
     assert late["epochs"] == 4 and late["stopped_early"] and late["best_epoch"] == 1
+    # The default: to the cap (the one-cycle schedule anneals only at its end), the best dev checkpoint kept.
+    full = train(train_set, dev, {k: v for k, v in params.items() if k != "early_stop_min_epoch_frac"},
+                 tmp_path / "full")
+    assert full["epochs"] == 8 and not full["stopped_early"] and full["best_epoch"] == 1
 
 
 @pytest.mark.slow
