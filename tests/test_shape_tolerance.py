@@ -111,13 +111,13 @@ def test_points_of_an_object_above_do_not_count_as_overhang():
 
 
 def test_template_views_move_along_the_normals_of_their_nearest_surface_samples(objects, templates):  # noqa: F811
-    """The prepared views (scoring.TemplateViews) offset exactly as a per-hypothesis tree query would."""
+    """The prepared views (scoring.CoverageViews) offset exactly as a per-hypothesis tree query would."""
     from sonardet.detect.model_based.models import build_class_model
-    from sonardet.detect.model_based.scoring import TemplateViews, _offset_along_normals, view_points
+    from sonardet.detect.model_based.scoring import CoverageViews, _offset_along_normals, view_points
 
     tb = build_class_model(templates["tetrapod_b"], objects["tetrapod_b"], 0.05)
     views = view_points(tb.views, 0.1)
-    tv = TemplateViews.of(tb, views)
+    tv = CoverageViews.of(tb, views)
     assert len(tv.bounds) == len(views) + 1 and tv.bounds[-1] == len(tv.points)
     for off in (-0.12, 0.0, 0.07):
         assert np.array_equal(tv.points + off * tv.normals if off else tv.points,

@@ -54,9 +54,9 @@ from .proposals import (
 )
 from .registration import SceneSource, SurfaceTarget, icp_scene_to_model
 from .scoring import (
+    CoverageViews,
     Hypothesis,
     SceneIndex,
-    TemplateViews,
     new_fraction,
     rescore,
     score_hypothesis,
@@ -128,7 +128,7 @@ class OursClass:
     model: the ClassModel; targets: (coarse, fine) ICP targets (the mesh surface sampled at two
     spacings); kernels: BEV kernels of the proposals (`proposals.class_kernels`); tumbled: rotations
     of the tumbled starts (`tumbled_rotations`; empty when `tumbled_inits` is off); views: the
-    template views thinned to `coverage_voxel_m` with their surface normals (`scoring.TemplateViews`;
+    template views thinned to `coverage_voxel_m` with their surface normals (`scoring.CoverageViews`;
     the template->scene fraction of upright poses).
     """
 
@@ -136,7 +136,7 @@ class OursClass:
     targets: tuple[SurfaceTarget, SurfaceTarget]
     kernels: list
     tumbled: list
-    views: TemplateViews
+    views: CoverageViews
 
 
 def prepare_classes(models: dict[str, ClassModel], p: dict) -> dict[str, OursClass]:
@@ -148,7 +148,7 @@ def prepare_classes(models: dict[str, ClassModel], p: dict) -> dict[str, OursCla
             targets=(SurfaceTarget(m.coarse_surface, m.coarse_normals), SurfaceTarget(m.surface, m.surface_normals)),
             kernels=class_kernels(m, p["bev_cell_m"], p["bev_yaw_step_deg"]),
             tumbled=tumbled_rotations(m, p) if p["tumbled_inits"] else [],
-            views=TemplateViews.of(m, view_points(m.views, p["coverage_voxel_m"])))
+            views=CoverageViews.of(m, view_points(m.views, p["coverage_voxel_m"])))
     return out
 
 

@@ -105,7 +105,7 @@ def view_points(views: list, voxel_m: float) -> list:
 
 
 @dataclass
-class TemplateViews:
+class CoverageViews:
     """A class's thinned template views prepared for coverage scoring (canonical frame, m): all points
     (K,3) of the views one after another, the outward normal (K,3) of the model surface sample nearest
     to each (fixed, since the views are: the shape offset of a hypothesis moves them along these
@@ -116,7 +116,7 @@ class TemplateViews:
     bounds: np.ndarray
 
     @classmethod
-    def of(cls, model, views: list) -> TemplateViews:
+    def of(cls, model, views: list) -> CoverageViews:
         """From `view_points` output and the class model (its surface samples and normals)."""
         pts = np.concatenate(views) if views else np.zeros((0, 3))
         if len(pts):
@@ -245,7 +245,7 @@ def _offset_along_normals(model, pts_canonical: np.ndarray, offset_m: float) -> 
     return pts_canonical + offset_m * model.surface_normals[i]
 
 
-def _coverage_upright(views: TemplateViews, R, t, ltree: cKDTree, occluders, params: dict,
+def _coverage_upright(views: CoverageViews, R, t, ltree: cKDTree, occluders, params: dict,
                       offset_m: float = 0.0, shadow: ShadowMap | None = None) -> float:
     """f_t of an upright pose: best over the thinned template views (canonical, moved by the shape offset
     `offset_m` along their normals, posed by R, t) of the share of asked points with a scene point
@@ -358,12 +358,12 @@ def tolerant_distance(model, pts_canonical: np.ndarray, params: dict) -> np.ndar
     return np.maximum(d - tau, 0.0) if tau > 0 else d
 
 
-def score_hypothesis(model, views: TemplateViews, R, t, scene: SceneIndex, params: dict, rmse_max_m: float,
+def score_hypothesis(model, views: CoverageViews, R, t, scene: SceneIndex, params: dict, rmse_max_m: float,
                      occluders=()) -> Hypothesis:
     """Score the pose (R (3,3), t (3,) m: canonical -> local scene frame) of `model` against `scene`.
 
     views: the class's template views thinned to coverage_voxel_m (`view_points`, prepared by
-    `TemplateViews.of`), for upright poses.
+    `CoverageViews.of`), for upright poses.
     rmse_max_m: the class's RMSE limit (m). occluders: boxes [x,y,z,l,w,h,yaw] of accepted objects;
     template points hidden under them are not asked for (f_t counts only the others). Returns a
     Hypothesis with the scores filled in (score 0 when no candidate point exists); the thresholds are
