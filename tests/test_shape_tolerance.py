@@ -12,6 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+# The fixtures and scan helpers of the model-based tests (default objects, reduced template views).
+from test_model_based import accepted, cfg, objects, place, sensor, survey, templates  # noqa: F401
+
 from sonardet.detect.model_based import detect
 from sonardet.detect.model_based.scoring import (
     Hypothesis,
@@ -21,9 +24,6 @@ from sonardet.detect.model_based.scoring import (
 )
 from sonardet.objects import canonical_box
 from sonardet.objects.perturb import perturbed_object
-
-# The fixtures and scan helpers of the model-based tests (default objects, reduced template views).
-from test_model_based import accepted, cfg, objects, place, sensor, survey, templates  # noqa: F401
 
 pytestmark = pytest.mark.slow
 
@@ -113,7 +113,11 @@ def test_points_of_an_object_above_do_not_count_as_overhang():
 def test_template_views_move_along_the_normals_of_their_nearest_surface_samples(objects, templates):  # noqa: F811
     """The prepared views (scoring.CoverageViews) offset exactly as a per-hypothesis tree query would."""
     from sonardet.detect.model_based.models import build_class_model
-    from sonardet.detect.model_based.scoring import CoverageViews, _offset_along_normals, view_points
+    from sonardet.detect.model_based.scoring import (
+        CoverageViews,
+        _offset_along_normals,
+        view_points,
+    )
 
     tb = build_class_model(templates["tetrapod_b"], objects["tetrapod_b"], 0.05)
     views = view_points(tb.views, 0.1)
