@@ -20,10 +20,17 @@ split is refused, it is for the final evaluation only) and one variant (default 
    exponent b of seconds = a * soundings^b is fitted by least squares on log-log.
 3. Scaling with objects: the same fit of the detection seconds of part 1 against the objects per
    scene (the printed range says how many objects the fit covers; the scenes also differ in
-   soundings and layout, so read it as a rough trend, not a law).
+   soundings and layout, so read it as a rough trend, not a law). With `--object-counts 0,25,50,...`
+   it is measured on scenes made for it instead: for each count k >= 1 one 40 x 40 m scene of the
+   config's distribution (arrangements, rocks, sensor) with exactly k objects (`scenes.n_objects`
+   [k, k]; ids ``n0001``, ``n0025``..., seeds from the config's seed and the id, so neither test nor
+   dev scenes; cached under <results>/benchmarks/object_scaling), timed like part 1 and scored
+   (mean AP at the headline distance over the classes present, accepted boxes), and the exponent
+   fitted over the counts.
 
     python benchmarks/detect_floor.py [--scenes 5] [--split dev] [--variant ours|paper]
                                       [--results results] [--ids s0100,s0101] [--json out.json]
+                                      [--object-counts 1,25,50,100,150] [--config config/config.yaml]
 
 `--scenes 0` (or more than the split holds) takes every scene of the split. `--ids` names the scenes
 instead of a split file (for a results folder without results/splits/; ids listed in
@@ -49,9 +56,12 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from detect import read_inputs  # benchmarks/detect.py
+from scene_cache import make_scenes  # benchmarks/scene_cache.py
 
+from sonardet.config import read_config, validate_config
 from sonardet.detect.model_based import ModelBasedDetector
 from sonardet.detect.model_based.ground import seabed
+from sonardet.eval.evaluate import evaluate
 from sonardet.io.origin import choose_origin
 from sonardet.io.scenes import read_scene_points
 
@@ -131,6 +141,81 @@ def time_detect(detector, xyz: np.ndarray) -> tuple[float, dict, int]:
     return time.perf_counter() - t, st, len(dets)
 
 
+def parse_counts(text: str | None) -> list[int]:
+    """The --object-counts list (ascending, distinct); exits naming the flag on a bad entry."""
+    if not text:
+        return []
+    try:
+        counts = sorted({int(c) for c in text.split(",") if c.strip()})
+    except ValueError:
+        sys.exit(f"--object-counts {text!r}: expected comma-separated integers, e.g. 0,25,50,100,150")
+    if not counts or counts[0] < 1:
+        # The config refuses scenes without objects (nothing to evaluate); part 1's floor is the
+        # cost of a scene's seabed without detection.
+        sys.exit(f"--object-counts {text!r}: expected counts >= 1 (e.g. 1,25,50,100,150)")
+    return counts
+
+
+def objects_over_part1(v: str, rows: list[dict]) -> dict:
+    """Part 3 without --object-counts: the power fit of part 1's seconds against its scenes' objects."""
+    objs = [r["objects"] for r in rows]
+    fo = fit_power(objs, [r["detect_s"] for r in rows])
+    sn = [r["soundings"] for r in rows]
+    rng_note = f"{len(rows)} scene(s), {min(objs)}-{max(objs)} objects and {min(sn)}-{max(sn)} soundings per scene"
+    if fo["b"] is None:
+        print(f"[{v}] seconds = a * objects^b: no fit ({rng_note}: needs 2 distinct counts)  {load()}")
+    else:
+        print(f"[{v}] seconds = a * objects^b: b = {fo['b']:.2f} (a = {fo['a']:.3g}; {rng_note}, a "
+              f"{max(objs) / max(min(objs), 1):.2f}x range of objects)  {load()}", flush=True)
+    return {"objects": objs, "detect_s": [r["detect_s"] for r in rows], "fit": fo,
+            "objects_min": min(objs), "objects_max": max(objs)}
+
+
+def present_map(res: dict) -> float | None:
+    """The mean AP at the headline distance over the classes the scene holds (the metric's mAP counts
+    an absent class as AP 0, which would make a scene of few objects look bad); None without any."""
+    aps = [next(a for th, a in pc["AP"].items() if float(th) == float(res["headline_m"]))
+           for pc in res["per_class"].values() if pc["n_gt"] > 0]
+    return float(np.mean(aps)) if aps else None
+
+
+def object_sweep(args, results: Path, detector, objects: dict, classes: list[str]) -> dict:
+    """Part 3 with --object-counts: one scene per count made for it, timed and scored; the power fit."""
+    v = args.variant
+    base = read_config(args.config)
+    out_dir = results / "benchmarks" / "object_scaling"
+    ev = base["evaluation"]
+    print(f"[{v}] part 3: detection seconds against objects per scene ({args.config}, scenes under {out_dir})",
+          flush=True)
+    rows = []
+    for k in parse_counts(args.object_counts):
+        raw = json.loads(json.dumps(base))
+        raw["scenes"]["n_objects"] = [k, k]
+        cfg = validate_config(raw, source=f"benchmarks/detect_floor.py --object-counts ({k} objects)")
+        sid = f"n{k:04d}"
+        make_scenes(cfg, objects, [sid], out_dir)
+        xyz = read_scene_points(out_dir / f"{sid}.npz")["xyz"]
+        gt_all = json.loads((out_dir / f"{sid}.json").read_text())["objects"]
+        gt = [o for o in gt_all if o.get("visible", True)]
+        t = time.perf_counter()
+        found, _ = detector(xyz)
+        d = time.perf_counter() - t
+        dets = [x for x in found if (x.get("extras") or {}).get("accepted", True)]
+        m = present_map(evaluate({sid: gt}, {sid: dets}, classes, ev["dist_thresholds_m"], ev["headline_m"],
+                                 min_recall=ev["min_recall"], min_precision=ev["min_precision"]))
+        rows.append({"scene": sid, "objects": len(gt_all), "visible": len(gt), "soundings": len(xyz),
+                     "detect_s": d, "n_detections": len(dets), "mAP": m, "loadavg": loadavg()})
+        print(f"{sid:>7} objects {len(gt_all):>4d} (visible {len(gt):>4d}) soundings {len(xyz):>8d} "
+              f"detect {d:>7.2f} s  detections {len(dets):>4d}  mAP {'-' if m is None else f'{m:.3f}'}  {load()}",
+              flush=True)
+    fo = fit_power([r["objects"] for r in rows], [r["detect_s"] for r in rows])
+    if fo["b"] is None:
+        print(f"[{v}] seconds = a * objects^b: no fit (needs 2 distinct counts)  {load()}")
+    else:
+        print(f"[{v}] seconds = a * objects^b: b = {fo['b']:.2f} (a = {fo['a']:.3g}; {len(rows)} scenes, "
+              f"{rows[0]['objects']}-{rows[-1]['objects']} objects)  {load()}", flush=True)
+    return {"config": args.config, "rows": rows, "fit": fo}
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--results", default="results")
@@ -139,11 +224,15 @@ def main():
     ap.add_argument("--ids", default=None, help="comma-separated scene ids instead of the split file")
     ap.add_argument("--variant", default="ours", choices=["ours", "paper"])
     ap.add_argument("--json", default=None, help="write all numbers to this JSON file")
+    ap.add_argument("--object-counts", default=None,
+                    help="comma-separated objects per scene for part 3 (e.g. 1,25,50,100,150): scenes made for it")
+    ap.add_argument("--config", default="config/config.yaml", help="config of the --object-counts scenes")
     args = ap.parse_args()
     results = Path(args.results)
     ids = scene_ids(results, args.split, args.ids, args.scenes)
     if not ids:
         sys.exit("no scenes to time")
+    parse_counts(args.object_counts)  # a bad flag fails before anything is built
     classes, objects, templates = read_inputs(results)
     t = time.perf_counter()
     detector = ModelBasedDetector(templates, objects, {}, args.variant)
@@ -221,18 +310,11 @@ def main():
     print(f"[{v}] seconds = a * soundings^b: b = {fs['b']:.2f} (a = {fs['a']:.3g}; {fs['n']} points, "
           f"{srows[0]['soundings']}-{srows[-1]['soundings']} soundings)  {load()}", flush=True)
 
-    # 3. scaling with objects over the scenes of part 1
-    objs = [r["objects"] for r in rows]
-    fo = fit_power(objs, [r["detect_s"] for r in rows])
-    out["objects_scaling"] = {"objects": objs, "detect_s": [r["detect_s"] for r in rows], "fit": fo,
-                              "objects_min": min(objs), "objects_max": max(objs)}
-    sn = [r["soundings"] for r in rows]
-    rng_note = f"{len(rows)} scene(s), {min(objs)}-{max(objs)} objects and {min(sn)}-{max(sn)} soundings per scene"
-    if fo["b"] is None:
-        print(f"[{v}] seconds = a * objects^b: no fit ({rng_note}: needs 2 distinct counts)  {load()}")
+    # 3. scaling with objects
+    if args.object_counts:
+        out["objects_scaling"] = object_sweep(args, results, detector, objects, classes)
     else:
-        print(f"[{v}] seconds = a * objects^b: b = {fo['b']:.2f} (a = {fo['a']:.3g}; {rng_note}, a "
-              f"{max(objs) / max(min(objs), 1):.2f}x range of objects)  {load()}", flush=True)
+        out["objects_scaling"] = objects_over_part1(v, rows)
     out["loadavg_end"] = loadavg()
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))

@@ -35,13 +35,13 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from detect import read_inputs  # benchmarks/detect.py
 from piles import arrangement_ap  # benchmarks/piles.py
+from scene_cache import make_scenes  # benchmarks/scene_cache.py
 
 from sonardet.config import read_config, validate_config
 from sonardet.detect.model_based import ModelBasedDetector
 from sonardet.eval.evaluate import evaluate
-from sonardet.io.scenes import read_scene_points, write_scene
+from sonardet.io.scenes import read_scene_points
 from sonardet.objects import classes as class_specs
-from sonardet.sim.scene import simulate_scene
 
 #: Share of the scene's objects that are tetrapod_s (the rest split evenly): with the default 50-60
 #: objects and scatter_fraction [0.1, 0.3], 19-27 tetrapod_s are grouped, one or two dumped piles.
@@ -57,19 +57,10 @@ def pile_config(cfg: dict, pile_class: str) -> dict:
     return validate_config(raw, source="benchmarks/dumped_piles.py")
 
 
-def make_scenes(cfg: dict, objects: dict, ids: list[str], out: Path) -> None:
-    """Simulate the scenes not yet under out (npz + json); progress on stdout."""
-    out.mkdir(parents=True, exist_ok=True)
-    for sid in ids:
-        npz, js = out / f"{sid}.npz", out / f"{sid}.json"
-        if npz.is_file() and js.is_file():
-            continue
-        t = time.perf_counter()
-        scene = simulate_scene(sid, cfg, objects)
-        write_scene(scene, npz, js)
-        piles = Counter(o["group"] for o in scene.meta["objects"] if o.get("arrangement") == "pile")
-        print(f"  simulated {sid}: {len(scene.meta['objects'])} objects, dumped piles {sorted(piles.values())}, "
-              f"{time.perf_counter() - t:.0f} s", flush=True)
+def _piles(meta: dict) -> str:
+    """The sizes of a scene's dumped piles, for its progress line."""
+    piles = Counter(o["group"] for o in meta["objects"] if o.get("arrangement") == "pile")
+    return f"dumped piles {sorted(piles.values())}"
 
 
 def main() -> None:
@@ -93,7 +84,7 @@ def main() -> None:
     ids = [f"d{k:04d}" for k in range(a.scenes)]
     out = Path(a.out) if a.out else results / "benchmarks" / "dumped_piles"
     print(f"{len(ids)} dumped-pile scene(s) under {out}; {os.cpu_count()} CPU(s), load {os.getloadavg()}", flush=True)
-    make_scenes(cfg, objects, ids, out)
+    make_scenes(cfg, objects, ids, out, describe=_piles)
     gt = {sid: [o for o in json.loads((out / f"{sid}.json").read_text())["objects"] if o.get("visible", True)]
           for sid in ids}
     points = {sid: read_scene_points(out / f"{sid}.npz")["xyz"] for sid in ids}
