@@ -7,9 +7,10 @@ with i. Proposals are (x, y) positions of the class's canonical origin (base cen
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy import ndimage as ndi
 from scipy.signal import fftconvolve
 
@@ -82,6 +83,18 @@ class Kernel:
     yaw_rad: float
     height: np.ndarray
     support: np.ndarray
+    #: Spectra of the height map and its square for the last padded shape used (a scene's rounds
+    #: share one raster shape): {"fshape": ..., "height": ..., "height2": ...}; filled by ncc_maps.
+    spectra: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def height_spectra(self, c: _Correlator):
+        """The spectra of `height` and `height`**2 for the correlator's padded shape (cached)."""
+        _, fshape = c._fshape(self.height.shape)
+        if self.spectra.get("fshape") != fshape:
+            self.spectra.clear()
+            self.spectra.update(fshape=fshape, height=c.kernel(self.height),
+                                height2=c.kernel(self.height * self.height))
+        return self.spectra["height"], self.spectra["height2"]
 
 
 def class_kernels(model, cell_m: float, yaw_step_deg: float) -> list[Kernel]:
@@ -106,6 +119,45 @@ def _corr(a: np.ndarray, k: np.ndarray) -> np.ndarray:
     return fftconvolve(a.astype(np.float32, copy=False), k[::-1, ::-1].astype(np.float32), mode="same")
 
 
+class _Correlator:
+    """Correlations ('same' size, float32) of rasters of one shape with kernels, in the frequency domain.
+
+    `_corr` (scipy's fftconvolve) transforms both inputs for every pair; the NCC correlates four
+    rasters with a class's support and each kernel's two height maps with two rasters, so here each
+    raster's and kernel's spectrum is computed once per padded shape and reused. The steps are
+    fftconvolve's own (padding to `next_fast_len` of the full size, rfftn of float32 inputs, product,
+    irfftn, centred crop), so every output equals `_corr`'s to the bit (tests/test_proposals_ncc.py).
+    """
+
+    def __init__(self, shape: tuple[int, int]):
+        self.shape = tuple(int(n) for n in shape)
+        self._spectra = {}
+
+    def _fshape(self, kshape) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        full = tuple(a + b - 1 for a, b in zip(self.shape, kshape))
+        return full, tuple(sp_fft.next_fast_len(n, True) for n in full)
+
+    def raster(self, name: str, a: np.ndarray, kshape):
+        """The spectrum of raster `a` (cached under `name` per padded shape) for kernels of `kshape`."""
+        _, fshape = self._fshape(kshape)
+        key = (name, fshape)
+        if key not in self._spectra:
+            self._spectra[key] = sp_fft.rfftn(a.astype(np.float32, copy=False), fshape, axes=(0, 1))
+        return self._spectra[key]
+
+    def kernel(self, k: np.ndarray):
+        """The spectrum of kernel `k`, flipped as a correlation needs."""
+        _, fshape = self._fshape(k.shape)
+        return sp_fft.rfftn(k[::-1, ::-1].astype(np.float32), fshape, axes=(0, 1))
+
+    def corr(self, a_spec, k_spec, kshape) -> np.ndarray:
+        """The correlation of a raster with a kernel of `kshape` from their spectra ('same' size)."""
+        full, fshape = self._fshape(kshape)
+        ret = sp_fft.irfftn(a_spec * k_spec, fshape, axes=(0, 1))[: full[0], : full[1]]
+        i0, j0 = (full[0] - self.shape[0]) // 2, (full[1] - self.shape[1]) // 2
+        return ret[i0: i0 + self.shape[0], j0: j0 + self.shape[1]].copy()
+
+
 def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float, min_data_frac: float):
     """Masked normalised cross-correlation (Padfield 2012) of the height raster with each kernel.
 
@@ -121,16 +173,19 @@ def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float, min_data_f
     arg = np.zeros(r.h.shape, dtype=np.int64)
     occ_frac = None
     cache = {}
+    c = _Correlator(r.h.shape)
     for k, ker in enumerate(kernels):
-        key = ker.support.shape
-        if key not in cache:
-            m = ker.support
-            n = np.maximum(_corr(d, m), 1.0)
-            cache[key] = (n, _corr(f, m), _corr(f * f, m), _corr(occ, m) / n)
-        n, sf, sff, of = cache[key]
+        ks = ker.support.shape
+        sd, sf_ = c.raster("d", d, ks), c.raster("f", f, ks)
+        if ks not in cache:
+            m = c.kernel(ker.support)
+            n = np.maximum(c.corr(sd, m, ks), 1.0)
+            cache[ks] = (n, c.corr(sf_, m, ks), c.corr(c.raster("ff", f * f, ks), m, ks),
+                         c.corr(c.raster("occ", occ, ks), m, ks) / n)
+        n, sf, sff, of = cache[ks]
         occ_frac = of
-        t = ker.height
-        st, stt, sft = _corr(d, t), _corr(d, t * t), _corr(f, t)
+        t_spec, tt_spec = ker.height_spectra(c)
+        st, stt, sft = c.corr(sd, t_spec, ks), c.corr(sd, tt_spec, ks), c.corr(sf_, t_spec, ks)
         num = sft - sf * st / n
         den = np.sqrt(np.clip((sff - sf * sf / n) * (stt - st * st / n), 1e-12, None))
         ncc = np.where(n >= min_data_frac * ker.support.sum(), num / den, -1.0)

@@ -1,0 +1,60 @@
+"""The NCC proposal maps reuse each raster's and kernel's spectrum (proposals._Correlator): their
+outputs must equal, to the bit, the masked NCC computed with one fftconvolve per pair (`_corr`)."""
+
+import numpy as np
+
+from sonardet.detect.model_based.proposals import Kernel, Raster, _corr, ncc_maps
+
+
+def _reference(r, kernels, occupied_min_m, min_data_frac):
+    """ncc_maps as written with one scipy fftconvolve per correlation."""
+    d = np.isfinite(r.h).astype(np.float64)
+    f = np.where(d > 0, np.clip(np.nan_to_num(r.h), 0.0, None), 0.0)
+    occ = (f > occupied_min_m).astype(np.float64)
+    best = np.full(r.h.shape, -1.0)
+    arg = np.zeros(r.h.shape, dtype=np.int64)
+    occ_frac = None
+    for k, ker in enumerate(kernels):
+        m = ker.support
+        n = np.maximum(_corr(d, m), 1.0)
+        sf, sff, occ_frac = _corr(f, m), _corr(f * f, m), _corr(occ, m) / n
+        t = ker.height
+        st, stt, sft = _corr(d, t), _corr(d, t * t), _corr(f, t)
+        num = sft - sf * st / n
+        den = np.sqrt(np.clip((sff - sf * sf / n) * (stt - st * st / n), 1e-12, None))
+        ncc = np.where(n >= min_data_frac * m.sum(), num / den, -1.0)
+        better = ncc > best
+        best[better] = ncc[better]
+        arg[better] = k
+    return best, arg, occ_frac
+
+
+def _kernels(rng, size, n):
+    c = np.arange(size) - size // 2
+    gx, gy = np.meshgrid(c, c)
+    support = (np.hypot(gx, gy) <= size // 2).astype(np.float64)
+    return [Kernel(float(y), rng.uniform(0.0, 2.0, (size, size)) * support, support)
+            for y in np.linspace(0, 1, n)]
+
+
+def test_ncc_maps_equal_the_per_pair_fftconvolve_to_the_bit():
+    rng = np.random.default_rng(3)
+    h = rng.uniform(-0.1, 2.0, (157, 203))
+    h[rng.random(h.shape) < 0.2] = np.nan  # shadow and hidden cells
+    r = Raster(h, 0.0, 0.0, 0.1)
+    for size, n in ((29, 4), (41, 1)):
+        kernels = _kernels(rng, size, n)
+        got = ncc_maps(r, kernels, 0.15, 0.5)
+        want = _reference(r, kernels, 0.15, 0.5)
+        for g, w in zip(got, want):
+            assert g.dtype == w.dtype and g.shape == w.shape
+            assert np.array_equal(g, w)
+        assert (got[0] > -1).any() and len(set(got[1].ravel())) == n  # a check that can fail
+        # The kernels keep their spectra for the next raster: of the same shape (a scene's next
+        # round) and of another shape (the next tile), the outputs still equal the reference.
+        for shape in ((157, 203), (120, 90)):
+            h2 = rng.uniform(-0.1, 2.0, shape)
+            h2[rng.random(shape) < 0.3] = np.nan
+            r2 = Raster(h2, 0.0, 0.0, 0.1)
+            for g, w in zip(ncc_maps(r2, kernels, 0.15, 0.5), _reference(r2, kernels, 0.15, 0.5)):
+                assert np.array_equal(g, w)
