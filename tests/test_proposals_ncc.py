@@ -3,17 +3,19 @@ outputs must equal, to the bit, the masked NCC computed with one fftconvolve per
 
 import numpy as np
 
-from sonardet.detect.model_based.proposals import Kernel, Raster, _corr, ncc_maps
+from sonardet.detect.model_based.proposals import (
+    Kernel,
+    Raster,
+    _corr,
+    ncc_maps,
+    ncc_rasters,
+)
 
 
 def _reference(r, kernels, occupied_min_m, min_data_frac):
     """ncc_maps as written with one scipy fftconvolve per correlation."""
-    d = np.isfinite(r.h).astype(np.float64)
-    f = np.where(d > 0, np.clip(np.nan_to_num(r.h), 0.0, None), 0.0)
-    occ = (f > occupied_min_m).astype(np.float64)
-    best = np.full(r.h.shape, -1.0)
-    arg = np.zeros(r.h.shape, dtype=np.int64)
-    occ_frac = None
+    d, f, occ = ncc_rasters(r, occupied_min_m)
+    best, arg, occ_frac = np.full(r.h.shape, -1.0), np.zeros(r.h.shape, dtype=np.int64), None
     for k, ker in enumerate(kernels):
         m = ker.support
         n = np.maximum(_corr(d, m), 1.0)

@@ -158,6 +158,14 @@ class _Correlator:
         return ret[i0: i0 + self.shape[0], j0: j0 + self.shape[1]].copy()
 
 
+def ncc_rasters(r: Raster, occupied_min_m: float):
+    """The NCC's inputs: data mask (1 where a cell holds data), heights (m, 0 where none, negatives
+    clipped) and occupancy (1 where higher than `occupied_min_m`), float64 rasters of r's shape."""
+    d = np.isfinite(r.h).astype(np.float64)
+    f = np.where(d > 0, np.clip(np.nan_to_num(r.h), 0.0, None), 0.0)
+    return d, f, (f > occupied_min_m).astype(np.float64)
+
+
 def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float, min_data_frac: float):
     """Masked normalised cross-correlation (Padfield 2012) of the height raster with each kernel.
 
@@ -166,9 +174,7 @@ def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float, min_data_f
     Returns (best NCC per cell, index of the best kernel per cell, share of the support's cells with
     data that hold points above `occupied_min_m`).
     """
-    d = np.isfinite(r.h).astype(np.float64)
-    f = np.where(d > 0, np.clip(np.nan_to_num(r.h), 0.0, None), 0.0)
-    occ = (f > occupied_min_m).astype(np.float64)
+    d, f, occ = ncc_rasters(r, occupied_min_m)
     best = np.full(r.h.shape, -1.0)
     arg = np.zeros(r.h.shape, dtype=np.int64)
     occ_frac = None
