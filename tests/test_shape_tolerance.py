@@ -126,3 +126,20 @@ def test_template_views_move_along_the_normals_of_their_nearest_surface_samples(
     for off in (-0.12, 0.0, 0.07):
         assert np.array_equal(tv.points + off * tv.normals if off else tv.points,
                               _offset_along_normals(tb, np.concatenate(views), off))
+
+
+def test_within_is_the_distance_test(objects, templates):  # noqa: F811
+    """`ClassModel.within` (bounded nearest-sample search) answers distance(p) < d exactly, for
+    points on, near and far from the surface, at bounds below and above 1.5 sample spacings."""
+    from sonardet.detect.model_based.models import build_class_model
+
+    tb = build_class_model(templates["tetrapod_b"], objects["tetrapod_b"], 0.05)
+    rng = np.random.default_rng(5)
+    near = tb.surface[::7] + rng.normal(0.0, 0.06, (len(tb.surface[::7]), 3))
+    far = rng.uniform(-3.0, 3.0, (4000, 3))
+    pts = np.concatenate([near, far])
+    for d in (0.01, 0.05, 0.075, 0.1, 0.3):
+        got, want = tb.within(pts, d), tb.distance(pts) < d
+        assert np.array_equal(got, want), d
+        assert 0 < want.sum() < len(pts)  # both answers occur
+    assert tb.within(np.zeros((0, 3)), 0.1).shape == (0,)

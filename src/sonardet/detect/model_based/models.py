@@ -91,6 +91,26 @@ class ClassModel:
         mag = np.where(dn < 1.5 * self.surface_spacing_m, np.abs(dot), dn)
         return np.where(dot < 0.0, -mag, mag)
 
+    def within(self, pts_canonical: np.ndarray, dist_m: float) -> np.ndarray:
+        """Boolean (K,): canonical-frame points whose :meth:`distance` is below `dist_m` (m).
+
+        The same test as ``distance(p) < dist_m``, with the nearest-sample search bounded: a point
+        whose nearest sample is farther than max(dist_m, 1.5 sample spacings) is at least that far
+        from the surface (its distance is then the sample distance), so the search may stop there.
+        """
+        if len(pts_canonical) == 0:
+            return np.zeros(0, dtype=bool)
+        p = np.asarray(pts_canonical, dtype=np.float64)
+        bound = max(float(dist_m), 1.5 * self.surface_spacing_m)
+        dn, i = self.surface_tree.query(p, k=1, distance_upper_bound=np.nextafter(bound, np.inf))
+        hit = np.isfinite(dn)
+        out = np.zeros(len(p), dtype=bool)
+        if hit.any():
+            ih, dh = i[hit], dn[hit]
+            dot = np.einsum("ij,ij->i", p[hit] - self.surface[ih], self.surface_normals[ih])
+            out[hit] = np.where(dh < 1.5 * self.surface_spacing_m, np.abs(dot), dh) < dist_m
+        return out
+
     def inside(self, pts_canonical: np.ndarray) -> np.ndarray:
         """Boolean (K,) of canonical-frame points inside the (watertight) mesh."""
         if len(pts_canonical) == 0:

@@ -214,7 +214,7 @@ class _Job:
 
     def quality(self, res, p) -> float:
         """Coarse quality of an ICP result: share of the probe points within coarse_q_dist_m of the posed surface."""
-        return float((self.model.distance((self.probe - res.t) @ res.R) < p["coarse_q_dist_m"]).mean())
+        return float(self.model.within((self.probe - res.t) @ res.R, p["coarse_q_dist_m"]).mean())
 
     def screen(self, starts, p, stats, keep: int) -> list:
         """The `keep` best starts (R0, t0) after the cheap `icp_screen_stage` (moved to its result)."""
