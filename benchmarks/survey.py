@@ -235,8 +235,29 @@ def run_workflow(survey: Path, results: Path, work: Path, args) -> dict:
     if proc.returncode != 0:
         raise SystemExit(f"the workflow failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
     n_tiles = len(list((work / "results" / "surveys" / "bench" / "tile_detections").glob("*.json")))
-    return {"wall_seconds": wall, "tiles": n_tiles, "cores": cores,
+    return {"wall_seconds": wall, "tiles": n_tiles, "cores": cores, "rules": rule_breakdown(work / "results", wall),
             "detections_json": work / "results" / "surveys" / "bench" / "detections.json"}
+
+
+def rule_breakdown(results: Path, wall_s: float) -> dict:
+    """Where the workflow's wall time went, from its Snakemake benchmark files: per rule the jobs, their
+    summed wall and CPU seconds and the span (first start to last end, s); `outside_jobs_s` is the wall
+    time of the snakemake command during which no job ran (start-up, DAG, checkpoint re-evaluation)."""
+    from sonardet.report.timeline import read_benchmarks
+
+    df = read_benchmarks(results / "benchmarks")
+    out = {}
+    for rule, g in df.groupby("rule"):
+        out[rule] = {"jobs": len(g), "seconds_sum": float(g["seconds"].sum()), "cpu_s_sum": float(g["cpu_s"].sum()),
+                     "span_s": float(g["end"].max() - g["start"].min()),
+                     "seconds_max": float(g["seconds"].max())}
+    busy, end = 0.0, -np.inf
+    for s_, e_ in sorted(zip(df["start"], df["end"])):  # union of the job intervals
+        if e_ > end:
+            busy += e_ - max(s_, end)
+            end = e_
+    out["outside_jobs_s"] = float(wall_s - busy) if len(df) else float(wall_s)
+    return out
 
 
 def main():
@@ -254,6 +275,8 @@ def main():
     ap.add_argument("--mosaic-n", type=int, default=25, help="scenes in the mosaic (default 25)")
     ap.add_argument("--cache", type=Path, default=None, help="keep / reuse the cast survey in this .npz file")
     ap.add_argument("--workflow", action="store_true", help="also run the survey through the workflow's tile jobs")
+    ap.add_argument("--no-cli", action="store_true", help="skip `sonardet detect` (with --workflow: time only the workflow)")
+    ap.add_argument("--keep", type=Path, default=None, help="keep the workflow's scratch folder here (must not exist)")
     ap.add_argument("--json", default=None, help="write the numbers to this JSON file")
     args = ap.parse_args()
     from sonardet.config import read_config
@@ -272,21 +295,29 @@ def main():
             survey, placed, n = survey_file(cfg, results, args, tmp)
             gt = ground_truth(placed, results)
         out["n_soundings"] = n
-        cli = run_cli(survey, results, tmp / "cli" / "survey.json", args)
-        cli.update(score(gt, tmp / "cli" / "survey.json", results, classes))
-        print(f"sonardet detect: {cli['tiles']} tiles, {cli['wall_seconds']:.1f} s wall ({cli['detect_seconds']:.1f} s "
-              f"detection, {cli['soundings_per_second']} soundings/s), peak memory {cli['peak_pss_bytes'] / 1e9:.2f} GB "
-              f"PSS ({cli['peak_rss_bytes'] / 1e9:.2f} GB RSS summed), mAP@0.5 {cli['mAP@0.5']:.3f} "
-              f"({cli['n_detections']} detections, {cli['n_gt']} objects); {load()}")
-        print("  AP@0.5 " + ", ".join(f"{c} {v:.3f}" for c, v in cli["AP@0.5"].items()))
-        out["cli"] = cli
+        if not args.no_cli:
+            cli = run_cli(survey, results, tmp / "cli" / "survey.json", args)
+            cli.update(score(gt, tmp / "cli" / "survey.json", results, classes))
+            print(f"sonardet detect: {cli['tiles']} tiles, {cli['wall_seconds']:.1f} s wall ({cli['detect_seconds']:.1f} s "
+                  f"detection, {cli['soundings_per_second']} soundings/s), peak memory {cli['peak_pss_bytes'] / 1e9:.2f} GB "
+                  f"PSS ({cli['peak_rss_bytes'] / 1e9:.2f} GB RSS summed), mAP@0.5 {cli['mAP@0.5']:.3f} "
+                  f"({cli['n_detections']} detections, {cli['n_gt']} objects); {load()}")
+            print("  AP@0.5 " + ", ".join(f"{c} {v:.3f}" for c, v in cli["AP@0.5"].items()))
+            out["cli"] = cli
         if args.workflow:
-            work = tmp / "workflow"
-            work.mkdir()
+            work = args.keep or tmp / "workflow"
+            work.mkdir(parents=True)
             wf = run_workflow(survey, results, work, args)
             wf.update(score(gt, wf.pop("detections_json"), results, classes))
             print(f"workflow (snakemake --cores {wf['cores']}): {wf['tiles']} tile jobs, {wf['wall_seconds']:.1f} s "
                   f"wall, mAP@0.5 {wf['mAP@0.5']:.3f}; {load()}")
+            for rule, r in wf["rules"].items():
+                if rule == "outside_jobs_s":
+                    continue
+                print(f"  {rule}: {r['jobs']} job(s), span {r['span_s']:.1f} s, wall summed {r['seconds_sum']:.1f} s "
+                      f"(longest {r['seconds_max']:.1f} s), CPU summed {r['cpu_s_sum']:.1f} s")
+            print(f"  no job running: {wf['rules']['outside_jobs_s']:.1f} s of the wall time (snakemake start-up, DAG, "
+                  f"checkpoint re-evaluation)")
             out["workflow"] = wf
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))

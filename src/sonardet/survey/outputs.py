@@ -117,16 +117,31 @@ def classify_soundings(xyz: np.ndarray, dets: Sequence[Mapping], classes: Sequen
     """Per-sounding fields of the classified LAS (see the module doc) for soundings xyz (N, 3) (m, the
     boxes' frame) and detections ``dets`` (boxes [x, y, z, l, w, h, yaw]): ``classification`` (uint8),
     ``object_id`` (int32) and ``cls`` (int16). Boxes are taken in descending score, so where they overlap
-    the higher-scored one wins."""
+    the higher-scored one wins.
+
+    Each box looks only at the soundings in the square of half side ``reach`` (half the diagonal of the
+    box grown by the margin: every yaw of it fits) around its centre, found in a KD-tree of the soundings' x, y with the Chebyshev metric
+    (scipy ``cKDTree``, ``p=inf``), then tested exactly (|dx|, |dy| <= reach, then ``points_in_box``):
+    the same soundings as a scan of the whole chunk per box, at the cost of the tree (a 1,400-object,
+    10 M-sounding survey: seconds instead of 90 s)."""
+    from scipy.spatial import cKDTree
+
     n = len(xyz)
     fields = {"classification": np.full(n, CLASS_SEABED, np.uint8), "object_id": np.full(n, -1, np.int32),
               "cls": np.full(n, -1, np.int16)}
+    if n == 0 or len(dets) == 0:
+        return fields
     index = {c: i for i, c in enumerate(classes)}
+    tree = cKDTree(np.ascontiguousarray(xyz[:, :2], dtype=np.float64))
     for k in sorted(range(len(dets)), key=lambda i: -float(dets[i]["score"])):
         box = np.asarray(dets[k]["box"], dtype=np.float64)
-        reach = 0.5 * float(np.hypot(box[3], box[4])) + margin_m
-        near = np.flatnonzero((np.abs(xyz[:, 0] - box[0]) <= reach) & (np.abs(xyz[:, 1] - box[1]) <= reach)
-                              & (fields["object_id"] < 0))
+        reach = float(np.hypot(0.5 * box[3] + margin_m, 0.5 * box[4] + margin_m))
+        # The tree's radius is widened by a relative 1e-9 so that rounding cannot drop a sounding on the
+        # square's edge; the exact test below decides.
+        cand = np.asarray(tree.query_ball_point(box[:2], reach * (1 + 1e-9) + 1e-9, p=np.inf), dtype=np.int64)
+        cand.sort()
+        near = cand[(np.abs(xyz[cand, 0] - box[0]) <= reach) & (np.abs(xyz[cand, 1] - box[1]) <= reach)
+                    & (fields["object_id"][cand] < 0)]
         inside = near[points_in_box(xyz[near], box, margin_m)]
         fields["classification"][inside] = CLASS_OBJECT
         fields["object_id"][inside] = k
