@@ -143,3 +143,40 @@ def test_within_is_the_distance_test(objects, templates):  # noqa: F811
         assert np.array_equal(got, want), d
         assert 0 < want.sum() < len(pts)  # both answers occur
     assert tb.within(np.zeros((0, 3)), 0.1).shape == (0,)
+
+
+def test_upright_coverage_per_view_counts_equal_the_loop_over_views(objects, templates):  # noqa: F811
+    """`_coverage_upright` (per-view counts from cumulative sums) equals the share computed view by view,
+    with occluders, a shadow map and empty views among them."""
+    from scipy.spatial import cKDTree
+
+    from sonardet.detect.model_based.models import build_class_model, rot_z
+    from sonardet.detect.model_based.params import DEFAULTS
+    from sonardet.detect.model_based.scoring import (
+        CoverageViews,
+        ShadowMap,
+        _asked,
+        _coverage_upright,
+        _excused,
+        view_points,
+    )
+
+    tb = build_class_model(templates["tetrapod_b"], objects["tetrapod_b"], 0.05)
+    views = view_points(tb.views, 0.1)
+    views = [views[0], np.zeros((0, 3)), *views[1:], np.zeros((0, 3))]  # empty views, inside and last
+    tv = CoverageViews.of(tb, views)
+    p = dict(DEFAULTS)
+    rng = np.random.default_rng(2)
+    R, t = rot_z(0.4), np.array([3.0, -2.0, -11.0])
+    for k, drop in enumerate((0.0, 0.5, 0.95)):
+        scene = views[2][rng.random(len(views[2])) >= drop] @ R.T + t + rng.normal(0, 0.02, (1, 3))
+        ltree = cKDTree(scene)
+        shadow = ShadowMap(scene + [0.0, 0.0, 0.5], p["shadow_cell_m"], p["shadow_margin_m"]) if k == 1 else None
+        occluders = [np.array([t[0] + 0.5, t[1], t[2] + 1.0, 1.0, 1.0, 2.0, 0.0])] if k == 2 else []
+        allv = tv.points @ R.T + t
+        hit = np.isfinite(ltree.query(allv, k=1, distance_upper_bound=p["coverage_m"])[0])
+        asked = _asked(allv, occluders, p) & ~_excused(allv, hit, shadow)
+        want = max((hit[a:b] & asked[a:b]).sum() / max(asked[a:b].sum(), p["coverage_asked_min_frac"] * (b - a), 1.0)
+                   for a, b in zip(tv.bounds[:-1], tv.bounds[1:]))
+        got = _coverage_upright(tv, R, t, ltree, occluders, p, 0.0, shadow)
+        assert got == want and 0.0 < got <= 1.0, (k, got, want)

@@ -14,6 +14,7 @@ p_scene = R p_canonical + t (metres). ICP works on float64 Open3D point clouds.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,18 +76,40 @@ def point_cloud(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.ge
 
 def is_rigid_transform(T: np.ndarray) -> bool:
     """Whether a 4x4 transform (ICP output) is finite and its rotation block a proper rotation within
-    `ROTATION_TOLERANCE` (determinant 1, orthonormal columns): no reflection, shear or NaN."""
-    if not np.all(np.isfinite(T)):
+    `ROTATION_TOLERANCE` (determinant 1, orthonormal columns): no reflection, shear or NaN.
+
+    Computed on Python floats (the determinant as the triple product of the rows): called after every
+    ICP stage, where numpy's per-call overhead on a 3x3 block cost more than the ICP of a small crop."""
+    T = np.asarray(T, dtype=np.float64)
+    if not np.isfinite(T).all():
         return False
-    R = T[:3, :3]
-    return (abs(np.linalg.det(R) - 1.0) < ROTATION_TOLERANCE
-            and float(np.abs(R.T @ R - np.eye(3)).max()) < ROTATION_TOLERANCE)
+    (a, b, c), (d, e, f), (g, h, i) = T[:3, :3].tolist()
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if abs(det - 1.0) >= ROTATION_TOLERANCE:
+        return False
+    cols = ((a, d, g), (b, e, h), (c, f, i))
+    for j in range(3):
+        for k in range(j, 3):
+            u, v = cols[j], cols[k]
+            dot = u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+            if abs(dot - (1.0 if j == k else 0.0)) >= ROTATION_TOLERANCE:
+                return False
+    return True
 
 
+@functools.lru_cache(maxsize=64)
 def convergence(max_iter: int):
     """Open3D ICP convergence criteria: `max_iter` iterations at most, stopping earlier at the relative
-    tolerances `ICP_RELATIVE_FITNESS` and `ICP_RELATIVE_RMSE`."""
+    tolerances `ICP_RELATIVE_FITNESS` and `ICP_RELATIVE_RMSE` (one shared object per `max_iter`:
+    registration_icp only reads it)."""
     return reg.ICPConvergenceCriteria(ICP_RELATIVE_FITNESS, ICP_RELATIVE_RMSE, int(max_iter))
+
+
+@functools.lru_cache(maxsize=64)
+def _point_to_plane_tukey(k_m: float):
+    """Point-to-plane estimation with a Tukey kernel of width k_m (m), one shared object per width
+    (registration_icp only reads it)."""
+    return reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=float(k_m)))
 
 
 def icp_point_to_point(template: np.ndarray, window: np.ndarray, max_corr_m: float, max_iter: int,
@@ -169,8 +192,8 @@ def icp_scene_to_model(scene_pts, target, R0: np.ndarray, t0: np.ndarray, stages
     res = None
     for (max_corr, n_iter, voxel), tgt in zip(stages, targets):
         src = src_all.at(voxel)
-        est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=float(tukey_k_factor * max_corr)))
-        res = reg.registration_icp(src, tgt.pcd, float(max_corr), T, est, convergence(n_iter))
+        est = _point_to_plane_tukey(float(tukey_k_factor * max_corr))
+        res = reg.registration_icp(src, tgt.pcd, float(max_corr), T, est, convergence(int(n_iter)))
         T_new = np.asarray(res.transformation)
         if not is_rigid_transform(T_new) or len(res.correspondence_set) < min_points:
             return None

@@ -257,10 +257,16 @@ def _coverage_upright(views: CoverageViews, R, t, ltree: cKDTree, occluders, par
     dd, _ = ltree.query(allv, k=1, distance_upper_bound=cov)
     hit = np.isfinite(dd)
     asked = _asked(allv, occluders, params) & ~_excused(allv, hit, shadow)
-    bounds = views.bounds
+    bounds = np.asarray(views.bounds, dtype=np.int64)
+    if len(bounds) < 2:
+        return 0.0
     floor = params["coverage_asked_min_frac"]
-    return float(max((hit[a:b] & asked[a:b]).sum() / max(asked[a:b].sum(), floor * (b - a), 1.0)
-                     for a, b in zip(bounds[:-1], bounds[1:])))
+    # Per-view counts from cumulative sums (one pass instead of a Python loop over the views).
+    n_hit = np.concatenate([[0], np.cumsum(hit & asked)])
+    n_asked = np.concatenate([[0], np.cumsum(asked)])
+    a, b = bounds[:-1], bounds[1:]
+    den = np.maximum(np.maximum(n_asked[b] - n_asked[a], floor * (b - a)), 1.0)
+    return float(np.max((n_hit[b] - n_hit[a]) / den))
 
 
 def _coverage_virtual(model, R, t, ltree: cKDTree, occluders, params: dict, offset_m: float = 0.0,
