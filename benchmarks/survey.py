@@ -33,7 +33,7 @@ tests; `--mosaic` needs a finished workflow's folder).
    more objects than that): mAP and AP per class, so a speed figure comes with its accuracy.
 
     python benchmarks/survey.py [--extent-m 200] [--objects 1400] [--gap-m 0.5] [--jobs J]
-                                [--mosaic train --mosaic-n 25] [--tile-m 40] [--results results]
+                                [--mosaic train --mosaic-n 25] [--tile-m 50] [--results results]
                                 [--cache survey.npz] [--workflow] [--json out.json]
 
 `--cache F` keeps the cast survey (soundings and objects) in F and reuses it when F exists with the same
@@ -58,6 +58,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from sonardet.survey import DEFAULT_TILE_M  # noqa: E402
 
 from detect_jobs import UTM, cast_survey, models_folder  # benchmarks/detect_jobs.py
 
@@ -265,7 +267,8 @@ def main():
     ap.add_argument("--extent-m", type=float, default=200.0, help="survey side in metres (default 200)")
     ap.add_argument("--objects", type=int, default=1400, help="objects on the seabed (default 1400)")
     ap.add_argument("--gap-m", type=float, default=0.5, help="least gap between two objects' footprints (m)")
-    ap.add_argument("--tile-m", type=float, default=40.0, help="tile side in metres (default 40, the CLI's)")
+    ap.add_argument("--tile-m", type=float, default=DEFAULT_TILE_M,
+                    help=f"largest tile side in metres (default {DEFAULT_TILE_M:g}, the CLI's and the workflow's)")
     ap.add_argument("--jobs", type=int, default=None, help="tiles at once (default: the cores this process may use)")
     ap.add_argument("--results", type=Path, default=None,
                     help="folder holding objects/ and templates/ (default: built here from the config)")

@@ -149,5 +149,7 @@ def test_cli_writes_every_output_and_drops_the_flier(cli_setup, capsys, caplog):
     assert rc == 0 and read_detections(out)["scene"] == "det" and (cfg.parent / "det.csv").exists()
     assert "1 isolated sounding(s)" in caplog.text and "41801 points, 1 tile(s), 1 detection" in capsys.readouterr().out
     assert not [p for p in cfg.parent.iterdir() if p.name.startswith(".staging")]
-    rc = main(_detect_args(cfg, survey, cfg.parent / "kept.json", "--keep-fliers"))
+    # kept, the flier stretches the bounds and gets tiles of its own (3 tiles in all with 40 m tiles,
+    # the plan this check was written for)
+    rc = main(_detect_args(cfg, survey, cfg.parent / "kept.json", "--keep-fliers", "--tile-m", "40"))
     assert rc == 0 and "41801 points, 3 tile(s), 1 detection" in capsys.readouterr().out

@@ -79,9 +79,9 @@ def _recorded_tiled_inputs(xyz, tile_m, overlap_m):
 def test_survey_settings_take_the_schema_defaults():
     s = survey_settings("line1", {"path": "a.xyz"})
     assert s == {"name": "line1", "path": "a.xyz", "enabled": True, "crs": None, "z_positive": None, "columns": None,
-                 "method": "model_based_ours", "tile_m": 40.0, "overlap_m": 3.0, "chunk_points": 1_000_000,
+                 "method": "model_based_ours", "tile_m": 50.0, "overlap_m": 3.0, "chunk_points": 1_000_000,
                  "all_hypotheses": False, "keep_fliers": False}
-    # The defaults are those of `sonardet detect` (tile 40 m, overlap 3 m, z direction and columns from the
+    # The defaults are those of `sonardet detect` (tile 50 m, overlap 3 m, z direction and columns from the
     # file, fliers left out).
     from sonardet.cli import build_parser
 
@@ -104,6 +104,12 @@ def test_survey_defaults_are_the_schema_defaults():
     assert all(type(SURVEY_DEFAULTS[k]) is type(v) for k, v in schema.items())
     survey_defaults()["tile_m"] = 1.0  # a copy: the constant is not changed through it
     assert SURVEY_DEFAULTS["tile_m"] == schema["tile_m"]
+    # `sonardet detect` tiles like the workflow by default
+    from sonardet.cli import build_parser
+    from sonardet.survey import DEFAULT_TILE_M
+
+    args = build_parser().parse_args(["detect", "--input", "x.xyz", "--out", "o.json"])
+    assert args.tile_m == DEFAULT_TILE_M == SURVEY_DEFAULTS["tile_m"]
 
 
 def test_default_config_runs_the_real_line():

@@ -331,7 +331,9 @@ def _add_detect_parser(sub) -> None:
     p.add_argument("--params", default=None,
                    help="parameter overrides of the method: a JSON object or a .json file (model-based: keys of "
                         "sonardet.detect.model_based.DEFAULTS / PAPER; SASA: its inference keys)")
-    p.add_argument("--tile-m", type=float, default=40.0, help="largest tile side in metres (default: 40)")
+    # sonardet.survey.DEFAULT_TILE_M (not imported here: the survey package is imported only when a
+    # survey is read, to keep `sonardet --help` fast; a test checks the two agree).
+    p.add_argument("--tile-m", type=float, default=50.0, help="largest tile side in metres (default: 50)")
     p.add_argument("--overlap-m", type=float, default=3.0,
                    help="tile overlap in metres, at least the largest object footprint (default: 3)")
     p.add_argument("--crs", default=None,

@@ -61,6 +61,7 @@ from sonardet.survey.split import (
     tile_ids,
 )
 from sonardet.survey.tiling import (
+    DEFAULT_TILE_M,
     SurveyLayout,
     Tile,
     available_cores,
@@ -77,6 +78,7 @@ __all__ = [
     "CLASS_OBJECT",
     "CLASS_SEABED",
     "DEFAULT_CHUNK_POINTS",
+    "DEFAULT_TILE_M",
     "FLIER_GAP_M",
     "FLIER_MAX_POINTS",
     "CellStats",

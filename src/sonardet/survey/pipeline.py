@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from sonardet.io.points import PointCloud, iter_slices
 from sonardet.survey.outputs import OutputPaths, SurveyMeta, write_survey_outputs
 from sonardet.survey.source import SurveyCloud, SurveySource, read_survey
-from sonardet.survey.tiling import check_jobs, detect_survey, plan_tiles
+from sonardet.survey.tiling import DEFAULT_TILE_M, check_jobs, detect_survey, plan_tiles
 
 __all__ = ["DetectRun", "SurveyDetection", "detect_survey_file"]
 
@@ -36,7 +36,7 @@ class DetectRun:
     method: str
     detector: Callable
     classes: list[str]
-    tile_m: float = 40.0
+    tile_m: float = DEFAULT_TILE_M
     overlap_m: float = 3.0
     min_overlap_m: float | None = None
     all_hypotheses: bool = False

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from sonardet.io.points import DEFAULT_CHUNK_POINTS
+from sonardet.survey.tiling import DEFAULT_TILE_M
 
 __all__ = ["SURVEY_DEFAULTS", "enabled_surveys", "object_footprint_m", "survey_defaults", "survey_settings"]
 
@@ -22,7 +23,7 @@ SURVEY_DEFAULTS: dict = {
     "z_positive": None,
     "columns": None,
     "method": "model_based_ours",
-    "tile_m": 40.0,
+    "tile_m": DEFAULT_TILE_M,
     "overlap_m": 3.0,
     "chunk_points": DEFAULT_CHUNK_POINTS,
     "all_hypotheses": False,

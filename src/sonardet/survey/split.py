@@ -75,7 +75,7 @@ from sonardet.survey.extent import (
     find_fliers,
 )
 from sonardet.survey.source import SurveySource, survey_chunks
-from sonardet.survey.tiling import Tile, plan_tiles, tile_points
+from sonardet.survey.tiling import DEFAULT_TILE_M, Tile, plan_tiles, tile_points
 
 log = logging.getLogger(__name__)
 
@@ -237,7 +237,7 @@ def _plan(cells: CellStats, tile_m, overlap_m, min_overlap_m, keep_fliers: bool)
                                                                      near=used.rects())
 
 
-def split_survey(path, tiles_dir, index_path, *, survey: str, tile_m: float = 40.0, overlap_m: float = 3.0,
+def split_survey(path, tiles_dir, index_path, *, survey: str, tile_m: float = DEFAULT_TILE_M, overlap_m: float = 3.0,
                  crs: str | None = None, min_overlap_m: float | None = None,
                  chunk_points: int = DEFAULT_CHUNK_POINTS, keep_fliers: bool = False,
                  z_positive: str | None = None, columns=None) -> dict:

@@ -66,7 +66,15 @@ from sonardet.survey.extent import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SurveyLayout", "Tile", "available_cores", "check_jobs", "detect_survey", "detect_tiled",
+#: Default largest tile side (m) of `sonardet detect` and of the workflow's survey jobs. Chosen on
+#: benchmarks/survey.py (training-scene mosaic and cast survey, never the test split): 50 m tiles
+#: detected the same objects as 40 m tiles (equal mAP and per-class AP on both surveys) in 12 % (cast,
+#: lone objects) to 36 % (mosaic of reef arrangements) less time, since a tile's 3 m overlap is a
+#: smaller share of a larger tile and fewer tiles pay the per-tile start-up; peak memory 1.1-1.3 GB PSS
+#: at 2 workers. README "Benchmarks" has the numbers.
+DEFAULT_TILE_M = 50.0
+
+__all__ = ["DEFAULT_TILE_M", "SurveyLayout", "Tile", "available_cores", "check_jobs", "detect_survey", "detect_tiled",
            "merge_tile_detections", "plan_tiles", "survey_layout", "tile_points"]
 
 
@@ -177,7 +185,7 @@ def _tiles_near(rects, box, nx: int, ny: int, overlap_m: float) -> list[tuple[in
     return sorted(found)
 
 
-def plan_tiles(bounds_xy, tile_m: float = 40.0, overlap_m: float = 3.0,
+def plan_tiles(bounds_xy, tile_m: float = DEFAULT_TILE_M, overlap_m: float = 3.0,
                min_overlap_m: float | None = None, near=None) -> list[Tile]:
     """Cut the rectangle `bounds_xy` = (xmin, ymin, xmax, ymax) (m, float64, any frame incl. UTM)
     into tiles at most `tile_m` wide.
@@ -282,7 +290,7 @@ class SurveyLayout:
         return xyz if self.keep is None else xyz[self.keep]
 
 
-def survey_layout(xyz: np.ndarray, tile_m: float = 40.0, overlap_m: float = 3.0, min_overlap_m: float | None = None,
+def survey_layout(xyz: np.ndarray, tile_m: float = DEFAULT_TILE_M, overlap_m: float = 3.0, min_overlap_m: float | None = None,
                   keep_fliers: bool = False, flier_gap_m: float = FLIER_GAP_M, flier_max_points: int = FLIER_MAX_POINTS,
                   source: str = "survey") -> SurveyLayout:
     """Fliers and tiles of the points xyz ((N, 3) float64 m, any frame incl. UTM; N >= 1).
@@ -496,7 +504,7 @@ def _detect_parallel(p, order, xs, tiles, detect_fn, workers: int, progress: boo
     return per_tile, [row for _, row in results]
 
 
-def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, overlap_m: float = 3.0,
+def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = DEFAULT_TILE_M, overlap_m: float = 3.0,
                  progress: bool = True, min_overlap_m: float | None = None, dup_dist_m: float = 0.5,
                  keep_fliers: bool = False, layout: SurveyLayout | None = None, bar: bool = False, jobs: int = 1):
     """Run `detect_fn` tile by tile over the points xyz (N,3) (float64 metres, any frame incl. UTM)
@@ -553,7 +561,7 @@ def detect_tiled(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, ove
     return merge_tile_detections(per_tile, tiles, dup_dist_m), rows
 
 
-def detect_survey(xyz: np.ndarray, detect_fn: Callable, tile_m: float = 40.0, overlap_m: float = 3.0,
+def detect_survey(xyz: np.ndarray, detect_fn: Callable, tile_m: float = DEFAULT_TILE_M, overlap_m: float = 3.0,
                   min_overlap_m: float | None = None, keep_fliers: bool = False, source: str = "survey",
                   bar: bool = False, jobs: int = 1):
     """Detection on a whole survey held in memory (what ``sonardet detect`` runs): `survey_layout`
