@@ -59,9 +59,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from sonardet.survey import DEFAULT_TILE_M  # noqa: E402
-
 from detect_jobs import UTM, cast_survey, models_folder  # benchmarks/detect_jobs.py
+
+from sonardet.survey import DEFAULT_TILE_M
 
 REPO = Path(__file__).resolve().parent.parent
 CRS = "EPSG:32610"
@@ -278,7 +278,8 @@ def main():
     ap.add_argument("--mosaic-n", type=int, default=25, help="scenes in the mosaic (default 25)")
     ap.add_argument("--cache", type=Path, default=None, help="keep / reuse the cast survey in this .npz file")
     ap.add_argument("--workflow", action="store_true", help="also run the survey through the workflow's tile jobs")
-    ap.add_argument("--no-cli", action="store_true", help="skip `sonardet detect` (with --workflow: time only the workflow)")
+    ap.add_argument("--no-cli", action="store_true",
+                    help="skip `sonardet detect` (with --workflow: time only the workflow)")
     ap.add_argument("--keep", type=Path, default=None, help="keep the workflow's scratch folder here (must not exist)")
     ap.add_argument("--json", default=None, help="write the numbers to this JSON file")
     args = ap.parse_args()

@@ -120,10 +120,11 @@ def classify_soundings(xyz: np.ndarray, dets: Sequence[Mapping], classes: Sequen
     the higher-scored one wins.
 
     Each box looks only at the soundings in the square of half side ``reach`` (half the diagonal of the
-    box grown by the margin: every yaw of it fits) around its centre, found in a KD-tree of the soundings' x, y with the Chebyshev metric
-    (scipy ``cKDTree``, ``p=inf``), then tested exactly (|dx|, |dy| <= reach, then ``points_in_box``):
-    the same soundings as a scan of the whole chunk per box, at the cost of the tree (a 1,400-object,
-    10 M-sounding survey: seconds instead of 90 s)."""
+    box grown by the margin: every yaw of it fits) around its centre, found in a KD-tree of the
+    soundings' x, y with the Chebyshev metric (scipy ``cKDTree``, ``p=inf``), then tested exactly
+    (|dx|, |dy| <= reach, then ``points_in_box``): the same soundings as a scan of the whole chunk per
+    box, at the cost of one tree per chunk (the workflow's merge of benchmarks/survey.py's 10 M-sounding
+    mosaic with 1,356 boxes: 11.6 s instead of 90.7 s)."""
     from scipy.spatial import cKDTree
 
     n = len(xyz)

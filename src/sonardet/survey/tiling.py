@@ -69,9 +69,9 @@ log = logging.getLogger(__name__)
 #: Default largest tile side (m) of `sonardet detect` and of the workflow's survey jobs. Chosen on
 #: benchmarks/survey.py (training-scene mosaic and cast survey, never the test split): 50 m tiles
 #: detected the same objects as 40 m tiles (equal mAP and per-class AP on both surveys) in 12 % (cast,
-#: lone objects) to 36 % (mosaic of reef arrangements) less time, since a tile's 3 m overlap is a
-#: smaller share of a larger tile and fewer tiles pay the per-tile start-up; peak memory 1.1-1.3 GB PSS
-#: at 2 workers. README "Benchmarks" has the numbers.
+#: lone objects) to 36-41 % (mosaic of reef arrangements) less time, peak memory 1.1-1.3 GB PSS at 2
+#: workers; the 3 m overlap's smaller share of a larger tile explains part of it (README "Speed" has
+#: the numbers and what is not traced).
 DEFAULT_TILE_M = 50.0
 
 __all__ = ["DEFAULT_TILE_M", "SurveyLayout", "Tile", "available_cores", "check_jobs", "detect_survey", "detect_tiled",
@@ -290,8 +290,8 @@ class SurveyLayout:
         return xyz if self.keep is None else xyz[self.keep]
 
 
-def survey_layout(xyz: np.ndarray, tile_m: float = DEFAULT_TILE_M, overlap_m: float = 3.0, min_overlap_m: float | None = None,
-                  keep_fliers: bool = False, flier_gap_m: float = FLIER_GAP_M, flier_max_points: int = FLIER_MAX_POINTS,
+def survey_layout(xyz: np.ndarray, tile_m: float = DEFAULT_TILE_M, overlap_m: float = 3.0,
+                  min_overlap_m: float | None = None, keep_fliers: bool = False, flier_gap_m: float = FLIER_GAP_M, flier_max_points: int = FLIER_MAX_POINTS,
                   source: str = "survey") -> SurveyLayout:
     """Fliers and tiles of the points xyz ((N, 3) float64 m, any frame incl. UTM; N >= 1).
 
