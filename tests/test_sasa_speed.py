@@ -187,3 +187,31 @@ def test_fused_weighted_batch_norm_kernel_equals_torch_formulation(monkeypatch):
         out.append([y.detach(), x.grad, bn.weight.grad, bn.bias.grad, bn.running_mean, bn.running_var])
     for a, b in zip(*out):
         assert _rel(a, b) < 1e-5
+
+
+def test_fused_segment_max_is_bitwise_torch_segment_reduce():
+    """Values and gradients of the grouped MLP's pooling equal torch.segment_reduce's to the bit, with
+    ties (ReLU zeros, repeated values), one-row segments, NaN and gradients of both signs."""
+    from sonardet.detect.sasa import backbone
+    from sonardet.detect.sasa.backbone import _FusedSegmentMax, segment_max
+
+    assert backbone.kernels is not None
+    g = torch.Generator().manual_seed(11)
+    lengths = torch.randint(1, 9, (700,), generator=g)
+    lengths[:50] = 1
+    R = int(lengths.sum())
+    h = torch.relu(torch.round(torch.randn(R, 16, generator=g) * 2) / 2)  # many ties, at 0 and above
+    h[5, 3] = float("nan")
+    up = torch.randn(len(lengths), 16, generator=g)
+    grads = []
+    for fn in (lambda x: torch.segment_reduce(x, "max", lengths=lengths, axis=0, unsafe=True),
+               lambda x: _FusedSegmentMax.apply(x, lengths), lambda x: segment_max(x, lengths)):
+        x = h.clone().requires_grad_()
+        y = fn(x)
+        (y * up).sum().backward()
+        grads.append((y.detach(), x.grad))
+    (y_ref, g_ref) = grads[0]
+    assert (g_ref != 0).sum() > lengths.numel() * 16  # ties: some channel's max is on two or more rows
+    for y, gi in grads[1:]:
+        assert torch.equal(torch.nan_to_num(y, nan=-7.0), torch.nan_to_num(y_ref, nan=-7.0))
+        assert torch.equal(gi, g_ref)

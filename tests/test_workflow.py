@@ -87,6 +87,10 @@ def test_sasa_training_outputs(smoke_run):
         run = smoke_run / f"results/models/sasa_{f}"
         summary = json.loads((run / "train.json").read_text())
         assert summary["epochs"] == 1 and summary["steps"] >= 1 and summary["s_per_step"] > 0
+        # the budget of every SASA row (issue: epochs, steps, n_points, n_parameters, device, train_s)
+        for key in ("epochs", "steps", "n_points", "n_parameters", "device", "train_s"):
+            assert summary[key] not in (None, ""), key
+        assert summary["train_s"] == summary["train_time_s"] > 0
         rows = (run / "loss.csv").read_text().splitlines()
         assert rows[0].startswith("epoch") and len(rows) == 2
     n = [json.loads((smoke_run / f"results/models/sasa_{f}/train.json").read_text())["n_train_scenes"]

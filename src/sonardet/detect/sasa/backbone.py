@@ -205,6 +205,38 @@ def _fused_ok(h: torch.Tensor) -> bool:
     return kernels is not None and h.device.type == "cpu" and h.dtype == torch.float32 and h.is_contiguous()
 
 
+class _FusedSegmentMax(torch.autograd.Function):
+    """``torch.segment_reduce(h, "max", lengths)`` over contiguous row segments (all non-empty) through
+    the CPU kernels of :mod:`.ops.kernels` (float32): the same values and the same gradient, bit for bit
+    (``tests/test_sasa_speed.py``)."""
+
+    @staticmethod
+    def forward(ctx, h, lengths):
+        offsets = torch.zeros(len(lengths) + 1, dtype=torch.int64)
+        torch.cumsum(lengths, 0, out=offsets[1:])
+        chunks = kernels.parallel_chunks(torch.get_num_threads())
+        out = torch.from_numpy(kernels.segment_max_forward(h.detach().numpy(), offsets.numpy(), chunks))
+        ctx.save_for_backward(h, out, offsets)
+        return out
+
+    @staticmethod
+    def backward(ctx, g):
+        h, out, offsets = ctx.saved_tensors
+        chunks = kernels.parallel_chunks(torch.get_num_threads())
+        gi = kernels.segment_max_backward(g.contiguous().numpy(), out.numpy(), h.detach().numpy(), offsets.numpy(),
+                                          chunks)
+        return torch.from_numpy(gi), None
+
+
+def segment_max(h: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+    """Max (S, C) over the contiguous row segments of h (R, C) with ``lengths`` (S,) rows each (every
+    length at least 1): ``torch.segment_reduce(h, "max", ...)``, through the fused kernels on CPU float32
+    (PyTorch's CPU backward of it walks each channel separately and cost more than the forward)."""
+    if _fused_ok(h) and lengths.device.type == "cpu" and len(lengths) and bool((lengths > 0).all()):
+        return _FusedSegmentMax.apply(h, lengths.to(torch.int64))
+    return torch.segment_reduce(h, "max", lengths=lengths, axis=0, unsafe=True)
+
+
 def weighted_batch_norm_relu(h: torch.Tensor, bn: nn.BatchNorm1d, rows: GroupRows) -> torch.Tensor:
     """ReLU(BatchNorm(h)) of rows h (R, C) that stand for ``rows.weight`` slots each.
 
@@ -283,7 +315,7 @@ class GroupedMLP(nn.Module):
         for lin, bn in zip(self.rest.linears, self.rest.norms):
             h = weighted_batch_norm_relu(lin(h), bn, rows)
         # max over each centre's rows (they are contiguous); empty groups give zeros
-        pooled = torch.segment_reduce(h, "max", lengths=rows.lengths, axis=0, unsafe=True)
+        pooled = segment_max(h, rows.lengths)
         pooled = pooled * (cnt > 0).reshape(B * M, 1).to(pooled.dtype)
         return pooled.view(B, M, -1)
 

@@ -18,6 +18,11 @@ the dtype of the coordinates, one rounding per operation, no fused multiply-add)
 * **Weighted batch norm + ReLU** (:func:`weighted_bn_relu_forward` / ``_backward``): the compact
   grouped MLP's normalisation fused into two passes forward and two backward (float64 statistics),
   parallel over row chunks with torch's thread count.
+* **Segment max** (:func:`segment_max_forward` / ``_backward``): the max over each centre's
+  contiguous rows (``torch.segment_reduce(..., "max")``) and its gradient with PyTorch's CPU
+  semantics (NaN wins; the gradient goes to every row equal to the max, and where two or more tie,
+  the positive ones are divided by their count), row-major and parallel over segments; PyTorch's
+  backward walks each channel down the rows, a strided pass per channel.
 
 Inputs must be finite (callers fall back to the PyTorch operators otherwise). Compiled on first use
 and cached on disk (``cache=True``); FPS and the ball query are single-threaded.
@@ -39,7 +44,7 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"
 
 __all__ = ["FPS_BLOCK", "fps_kernel", "ball_query_kernel", "grid_cell", "weighted_bn_relu_forward",
-           "weighted_bn_relu_backward", "parallel_chunks"]
+           "weighted_bn_relu_backward", "segment_max_forward", "segment_max_backward", "parallel_chunks"]
 
 #: Points per FPS block (bounding-box test granularity).
 FPS_BLOCK = 64
@@ -396,6 +401,57 @@ def weighted_bn_relu_backward(gy, y, h, wn, mean, invstd, gamma, nchunks):
                 xhat = (h[i, c] - mean32[c]) * inv32[c]
                 dh[i, c] = a[c] * (g - w * (db32[c] + xhat * dg32[c]))
     return dh, dgamma, dbeta
+
+
+@numba.njit(**_JIT_PAR)
+def segment_max_forward(h, offsets, nchunks):
+    """Max over contiguous row segments: rows offsets[s]:offsets[s + 1] of h (R, C) -> (S, C), S =
+    len(offsets) - 1, every segment non-empty. A NaN row value makes its channel's max NaN (PyTorch's rule)."""
+    S = offsets.shape[0] - 1
+    C = h.shape[1]
+    out = np.empty((S, C), dtype=h.dtype)
+    for k in numba.prange(nchunks):
+        for s in range(k * S // nchunks, (k + 1) * S // nchunks):
+            a = offsets[s]
+            for c in range(C):
+                out[s, c] = h[a, c]
+            for i in range(a + 1, offsets[s + 1]):
+                for c in range(C):
+                    v = h[i, c]
+                    m = out[s, c]
+                    out[s, c] = v if (np.isnan(v) or m < v) else m
+    return out
+
+
+@numba.njit(**_JIT_PAR)
+def segment_max_backward(g, out, h, offsets, nchunks):
+    """Gradient of :func:`segment_max_forward` for the output gradient g (S, C): PyTorch's CPU rule,
+    each row whose value equals its segment's max (or is NaN) gets g; where n >= 2 rows of a channel
+    do, those with a positive gradient get g / n. Returns (R, C), zero elsewhere."""
+    S = offsets.shape[0] - 1
+    C = h.shape[1]
+    gi = np.empty_like(h)
+    zero = np.float32(0.0)
+    for k in numba.prange(nchunks):
+        cnt = np.zeros(C, dtype=np.int64)
+        for s in range(k * S // nchunks, (k + 1) * S // nchunks):
+            a, b = offsets[s], offsets[s + 1]
+            cnt[:] = 0
+            for i in range(a, b):
+                for c in range(C):  # branch-free, so that the loop vectorises; every element written
+                    v = h[i, c]
+                    hit = np.isnan(v) or v == out[s, c]
+                    gi[i, c] = g[s, c] if hit else zero
+                    cnt[c] += hit
+            tied = False
+            for c in range(C):
+                tied = tied or cnt[c] >= 2
+            if tied:
+                for i in range(a, b):
+                    for c in range(C):
+                        if cnt[c] >= 2 and gi[i, c] > 0:
+                            gi[i, c] = gi[i, c] / np.float32(cnt[c])
+    return gi
 
 
 def parallel_chunks(threads: int) -> int:
