@@ -388,6 +388,10 @@ class SALayer(nn.Module):
         Returns:
             new_xyz (B, M, 3), new_features (B, M, C_out), logits (B, M) or None, idx (B, M).
         """
+        if kernels is not None and xyz.device.type == "cpu":
+            # The compiled FPS / ball query run one thread per cloud, with the threads the rest of the
+            # layer has (limit_threads only narrows torch's own small ops).
+            kernels.parallel_chunks(torch.get_num_threads())
         with limit_threads(self.sampling_threads if xyz.device.type == "cpu" else None):
             idx = self.sample(xyz, scores)
             new_xyz = index_points(xyz, idx)

@@ -25,7 +25,7 @@ the dtype of the coordinates, one rounding per operation, no fused multiply-add)
   backward walks each channel down the rows, a strided pass per channel.
 
 Inputs must be finite (callers fall back to the PyTorch operators otherwise). Compiled on first use
-and cached on disk (``cache=True``); FPS and the ball query are single-threaded.
+and cached on disk (``cache=True``); FPS and the ball query run one thread per cloud of the batch.
 """
 
 from __future__ import annotations
@@ -55,6 +55,7 @@ _SKIP_MARGIN = 1e-5
 _TEMP_INIT = 1e10
 
 _JIT = dict(cache=True, nogil=True)
+_JIT_PAR = dict(cache=True, nogil=True, parallel=True)
 
 
 @numba.njit(**_JIT)
@@ -169,7 +170,7 @@ def _fps_one(xyz, w, n_iter, first, out):
         out[j] = old
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_JIT_PAR)
 def fps_kernel(xyz, w_raw, w_clamped, n_iter, weighted):
     """Furthest point sampling of a batch, in preference positions.
 
@@ -185,11 +186,14 @@ def fps_kernel(xyz, w_raw, w_clamped, n_iter, weighted):
 
     Returns:
         (B, n_iter) int64 positions in the preference order (map back with the order permutation).
+
+    The clouds of the batch are sampled in parallel (Numba's thread count, see :func:`parallel_chunks`),
+    each by one thread as before: the same picks.
     """
     B, n = xyz.shape[0], xyz.shape[1]
     out = np.empty((B, n_iter), np.int64)
     ones = np.ones(n, xyz.dtype)
-    for b in range(B):
+    for b in numba.prange(B):
         first = 0
         if weighted:
             for i in range(1, n):
@@ -281,7 +285,7 @@ def _assign_shells(x, y, z, qx, qy, qz, buf, nh, r_in2, r_out2, nsamples, offset
                 out[offsets[s] + j] = out[offsets[s] + j % c]
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_JIT_PAR)
 def ball_query_kernel(xyz, new_xyz, r_in2, r_out2, nsamples, cell):
     """Multi-shell ball query of a batch (the reference semantics of :mod:`.grouping`).
 
@@ -296,6 +300,8 @@ def ball_query_kernel(xyz, new_xyz, r_in2, r_out2, nsamples, cell):
     Returns:
         (idx (B, M, sum(nsamples)) int64, the shells' index blocks side by side; cnt (B, M, S) int64
         hits kept per shell). Empty shells keep count 0 and indices 0.
+
+    The clouds of the batch are queried in parallel (Numba's thread count), each by one thread.
     """
     B, N, M, S = xyz.shape[0], xyz.shape[1], new_xyz.shape[1], r_out2.shape[0]
     offsets = np.zeros(S, np.int64)
@@ -304,8 +310,8 @@ def ball_query_kernel(xyz, new_xyz, r_in2, r_out2, nsamples, cell):
     out = np.zeros((B, M, offsets[S - 1] + nsamples[S - 1]), np.int64)
     cnt = np.zeros((B, M, S), np.int64)
     rmax2 = r_out2.max()
-    buf = np.empty(N, np.int64)
-    for b in range(B):
+    for b in numba.prange(B):
+        buf = np.empty(N, np.int64)
         x, y, z = xyz[b, :, 0].copy(), xyz[b, :, 1].copy(), xyz[b, :, 2].copy()
         start, members, x0, y0, nx, ny = _column_grid(x, y, cell)
         for m in range(M):
@@ -323,8 +329,6 @@ def grid_cell(r_max: float, scale: float, n_points: int, extent: float) -> float
     cell = r_max * (1.0 + 1e-3) + 1e-5 * (1.0 + scale)
     return max(cell, extent / math.sqrt(4.0 * max(n_points, 1)))
 
-
-_JIT_PAR = dict(cache=True, nogil=True, parallel=True)
 
 
 @numba.njit(**_JIT_PAR)
