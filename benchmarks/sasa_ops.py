@@ -8,7 +8,8 @@ give the same indices. Prints a table; ``--json PATH`` also writes the rows for 
 Workload: a synthetic seabed-like cloud (x, y uniform over 40 m x 40 m, z a gentle surface with
 a few 1-2 m mounds), the SASA sampling chain 16384 -> 4096 -> 1024 -> 512 points, the ball
 queries of an SA1 layer with sonar radii (0.4 / 0.8 / 1.2 m, nsample 16 / 16 / 32), grouping of
-64-channel features, and rotated NMS / IoU on 500 boxes clustered around 25 objects.
+64-channel features, the compact grouped MLP's weighted batch norm and max pooling (fused kernels
+against PyTorch), and rotated NMS / IoU on 500 boxes clustered around 25 objects.
 
 Peak memory of the ball query is measured in a fresh subprocess (ru_maxrss growth) so earlier
 allocations do not hide it.
@@ -159,6 +160,32 @@ def weighted_bn_rows(add, repeat: int) -> None:
         add(f"weighted BN+ReLU fwd+bwd [{name}]", f"R={rows} C={ch}", timeit(fwd_bwd, torch.device("cpu"), repeat))
 
 
+def segment_max_rows(add, repeat: int) -> None:
+    """The compact grouped MLP's max pooling, forward and forward + backward, on 60,000 rows of 64
+    post-ReLU channels in segments of 1-32 rows: the fused Numba kernels (CPU float32) against
+    ``torch.segment_reduce``, the same values and gradients."""
+    from sonardet.detect.sasa.backbone import _FusedSegmentMax
+
+    g = torch.Generator().manual_seed(0)
+    lengths = torch.randint(1, 33, (3_600,), generator=g)
+    rows, ch = int(lengths.sum()), 64
+    h = torch.relu(torch.randn(rows, ch, generator=g)).requires_grad_()
+    up = torch.randn(len(lengths), ch, generator=g)
+    paths = (("fused", lambda x: _FusedSegmentMax.apply(x, lengths)),
+             ("torch", lambda x: torch.segment_reduce(x, "max", lengths=lengths, axis=0, unsafe=True)))
+    for name, fn in paths:
+        def fwd():
+            with torch.no_grad():
+                fn(h)
+
+        def fwd_bwd():
+            (fn(h) * up).sum().backward()
+            h.grad = None
+
+        add(f"segment max fwd [{name}]", f"R={rows} C={ch}", timeit(fwd, torch.device("cpu"), repeat))
+        add(f"segment max fwd+bwd [{name}]", f"R={rows} C={ch}", timeit(fwd_bwd, torch.device("cpu"), repeat))
+
+
 def run(device: torch.device, batches: list[int], repeat: int, rows: list[dict]) -> None:
     def add(op, shape, seconds, note=""):
         rows.append({"device": str(device), "op": op, "shape": shape, "ms": 1000 * seconds, "note": note})
@@ -203,6 +230,7 @@ def run(device: torch.device, batches: list[int], repeat: int, rows: list[dict])
 
     if device.type == "cpu":
         weighted_bn_rows(add, repeat)
+        segment_max_rows(add, repeat)
     boxes, scores = clustered_boxes(500)
     boxes, scores = boxes.to(device), scores.to(device)
     n_keep = len(nms_bev_rotated(boxes, scores, 0.1))
