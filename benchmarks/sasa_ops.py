@@ -14,7 +14,7 @@ against PyTorch), and rotated NMS / IoU on 500 boxes clustered around 25 objects
 Peak memory of the ball query is measured in a fresh subprocess (ru_maxrss growth) so earlier
 allocations do not hide it.
 
-Usage: ``python benchmarks/sasa_ops.py [--quick] [--threads 2] [--json out.json]``
+Usage: ``python benchmarks/sasa_ops.py [--quick | --rows-only] [--repeat 3] [--threads 2] [--json out.json]``
 """
 
 from __future__ import annotations
@@ -251,6 +251,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="batch 2 only, 1 repeat, no memory probe")
     ap.add_argument("--no-cuda", action="store_true")
+    ap.add_argument("--rows-only", action="store_true",
+                    help="only the grouped MLP's row kernels (weighted batch norm, segment max), CPU, --repeat times")
     ap.add_argument("--json", default=None, help="write the rows to this JSON file")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -259,11 +261,20 @@ def main() -> None:
     rows: list[dict] = []
     print(f"torch {torch.__version__}, CPU threads {torch.get_num_threads()}")
     print(f"{'device':6s} {'op':34s} {'shape':34s} {'time':>13s}")
-    run(torch.device("cpu"), batches, repeat, rows)
-    if torch.cuda.is_available() and not args.no_cuda:
+    if args.rows_only:
+        def add(op, shape, seconds):
+            rows.append({"device": "cpu", "op": op, "shape": shape, "ms": 1000 * seconds})
+            print(f"{'cpu':6s} {op:34s} {shape:34s} {1000 * seconds:10.1f} ms", flush=True)
+
+        weighted_bn_rows(add, args.repeat)
+        segment_max_rows(add, args.repeat)
+        batches = []
+    else:
+        run(torch.device("cpu"), batches, repeat, rows)
+    if torch.cuda.is_available() and not args.no_cuda and not args.rows_only:
         print(f"CUDA: {torch.cuda.get_device_name()}")
         run(torch.device("cuda"), [2, 8], args.repeat, rows)
-    if not args.quick:
+    if not args.quick and batches:
         ctx = mp.get_context("spawn")
         for batch in batches:
             for shells in (False, True):
