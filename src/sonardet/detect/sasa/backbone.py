@@ -53,7 +53,8 @@ def limit_threads(n: int | None):
 
     FPS and ball query issue thousands of small ops; on CPU their threading overhead dominates (a
     2048-step D-FPS on 4 x 8192 points: 0.25 s on 1 thread, 3-4 s on 2 threads of a busy 2-core
-    machine), while the convolutions gain from every thread. Sampling therefore runs single-threaded.
+    machine), while the convolutions gain from every thread. Sampling therefore runs single-threaded
+    in PyTorch (the compiled kernels of :mod:`.ops.kernels` run one thread per cloud of the batch instead).
     """
     old = torch.get_num_threads()
     if not n or n >= old:

@@ -267,7 +267,8 @@ DEFAULTS: dict = {
     "nms_post_max": 200,                     # boxes kept per scene
     # ---- runtime ----
     "num_threads": None,                     # torch CPU threads (None: leave torch's setting)
-    "sampling_threads": 1,                   # CPU threads for FPS / ball query (0: same as num_threads)
+    "sampling_threads": 1,                   # CPU threads of the PyTorch FPS / ball query ops (0: num_threads;
+                                             # the compiled kernels use num_threads, one per cloud)
     "compact_groups": True,                  # grouped MLPs on distinct hits only (False: padded, bitwise as before)
     "progress": True,                        # tqdm progress bar
 }

@@ -38,8 +38,9 @@ import numpy as np
 
 # Numba's default threading layer here is GNU OpenMP, whose threads do not survive a fork: a process
 # that ran a parallel kernel could then not fork tile workers (`sonardet detect --jobs`). The
-# workqueue layer is fork-safe and enough for the one parallel kernel (the weighted batch norm, called
-# from one thread). A layer chosen with NUMBA_THREADING_LAYER wins.
+# workqueue layer is fork-safe and enough for the parallel kernels here (batch norm, segment max, FPS and
+# ball query over the clouds of a batch), which the model calls from one thread. A layer chosen with
+# NUMBA_THREADING_LAYER wins.
 if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"
 
