@@ -199,9 +199,12 @@ def test_fused_segment_max_is_bitwise_torch_segment_reduce():
     g = torch.Generator().manual_seed(11)
     lengths = torch.randint(1, 9, (700,), generator=g)
     lengths[:50] = 1
+    lengths[50] = 3  # rows 50-52: the all -inf segment below
     R = int(lengths.sum())
     h = torch.relu(torch.round(torch.randn(R, 16, generator=g) * 2) / 2)  # many ties, at 0 and above
     h[5, 3] = float("nan")
+    h[50:53, 1] = -float("inf")  # a segment whose channel is all -inf; signed zeros below
+    h[60, 2], h[61, 2] = -0.0, 0.0
     up = torch.randn(len(lengths), 16, generator=g)
     grads = []
     for fn in (lambda x: torch.segment_reduce(x, "max", lengths=lengths, axis=0, unsafe=True),
@@ -214,4 +217,5 @@ def test_fused_segment_max_is_bitwise_torch_segment_reduce():
     assert (g_ref != 0).sum() > lengths.numel() * 16  # ties: some channel's max is on two or more rows
     for y, gi in grads[1:]:
         assert torch.equal(torch.nan_to_num(y, nan=-7.0), torch.nan_to_num(y_ref, nan=-7.0))
+        assert torch.equal(torch.signbit(y), torch.signbit(y_ref))
         assert torch.equal(gi, g_ref)
