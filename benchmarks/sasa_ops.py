@@ -186,10 +186,16 @@ def segment_max_rows(add, repeat: int) -> None:
         add(f"segment max fwd+bwd [{name}]", f"R={rows} C={ch}", timeit(fwd_bwd, torch.device("cpu"), repeat))
 
 
-def run(device: torch.device, batches: list[int], repeat: int, rows: list[dict]) -> None:
+def row_adder(device: torch.device, rows: list[dict]):
+    """A function add(op, shape, seconds, note="") that appends a timing row to `rows` and prints it."""
     def add(op, shape, seconds, note=""):
         rows.append({"device": str(device), "op": op, "shape": shape, "ms": 1000 * seconds, "note": note})
         print(f"{str(device):6s} {op:34s} {shape:34s} {1000 * seconds:10.1f} ms  {note}", flush=True)
+    return add
+
+
+def run(device: torch.device, batches: list[int], repeat: int, rows: list[dict]) -> None:
+    add = row_adder(device, rows)
 
     for batch in batches:
         xyz0 = seabed_cloud(batch, 16384).to(device)
@@ -262,10 +268,7 @@ def main() -> None:
     print(f"torch {torch.__version__}, CPU threads {torch.get_num_threads()}")
     print(f"{'device':6s} {'op':34s} {'shape':34s} {'time':>13s}")
     if args.rows_only:
-        def add(op, shape, seconds):
-            rows.append({"device": "cpu", "op": op, "shape": shape, "ms": 1000 * seconds})
-            print(f"{'cpu':6s} {op:34s} {shape:34s} {1000 * seconds:10.1f} ms", flush=True)
-
+        add = row_adder(torch.device("cpu"), rows)
         weighted_bn_rows(add, args.repeat)
         segment_max_rows(add, args.repeat)
         batches = []

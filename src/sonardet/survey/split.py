@@ -237,8 +237,8 @@ def _plan(cells: CellStats, tile_m, overlap_m, min_overlap_m, keep_fliers: bool)
                                                                      near=used.rects())
 
 
-def split_survey(path, tiles_dir, index_path, *, survey: str, tile_m: float = DEFAULT_TILE_M, overlap_m: float = 3.0,
-                 crs: str | None = None, min_overlap_m: float | None = None,
+def split_survey(path, tiles_dir, index_path, *, survey: str, tile_m: float = DEFAULT_TILE_M,
+                 overlap_m: float = 3.0, crs: str | None = None, min_overlap_m: float | None = None,
                  chunk_points: int = DEFAULT_CHUNK_POINTS, keep_fliers: bool = False,
                  z_positive: str | None = None, columns=None) -> dict:
     """Cut a survey file into tiles: ``tiles_dir/{tile}.npz`` per non-empty tile and the tile index

@@ -291,8 +291,8 @@ class SurveyLayout:
 
 
 def survey_layout(xyz: np.ndarray, tile_m: float = DEFAULT_TILE_M, overlap_m: float = 3.0,
-                  min_overlap_m: float | None = None, keep_fliers: bool = False, flier_gap_m: float = FLIER_GAP_M, flier_max_points: int = FLIER_MAX_POINTS,
-                  source: str = "survey") -> SurveyLayout:
+                  min_overlap_m: float | None = None, keep_fliers: bool = False, flier_gap_m: float = FLIER_GAP_M,
+                  flier_max_points: int = FLIER_MAX_POINTS, source: str = "survey") -> SurveyLayout:
     """Fliers and tiles of the points xyz ((N, 3) float64 m, any frame incl. UTM; N >= 1).
 
     The occupied cells of a grid of `tile_m` (`sonardet.survey.extent.CellStats`) give the fliers

@@ -331,7 +331,6 @@ def grid_cell(r_max: float, scale: float, n_points: int, extent: float) -> float
     return max(cell, extent / math.sqrt(4.0 * max(n_points, 1)))
 
 
-
 @numba.njit(**_JIT_PAR)
 def _weighted_sums(h, wn, centre, nchunks):
     """Per-chunk weighted column sums of (h - centre) and (h - centre)^2 (float64, (nchunks, C) each)."""
@@ -448,10 +447,7 @@ def segment_max_backward(g, out, h, offsets, nchunks):
                     hit = np.isnan(v) or v == out[s, c]
                     gi[i, c] = g[s, c] if hit else zero
                     cnt[c] += hit
-            tied = False
-            for c in range(C):
-                tied = tied or cnt[c] >= 2
-            if tied:
+            if cnt.max() >= 2:  # ties in some channel
                 for i in range(a, b):
                     for c in range(C):
                         if cnt[c] >= 2 and gi[i, c] > 0:
