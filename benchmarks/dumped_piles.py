@@ -1,10 +1,11 @@
 """Dumped tetrapod piles: AP of the pile members alone, on scenes made for this benchmark.
 
-The workflow's scenes lay tetrapod_s piles in rows (``scenes.dump_fraction`` 0 by default); real
-piles are dumped: 15-20 elements poured into a ring fence that is then removed, so the pile slumps
-(sonardet.sim.layout, arrangement ``pile`` with a fence). This benchmark makes N such scenes with the
-project's simulator (the config's scenes, with every tetrapod_s group dumped and a class mix that
-gives each scene one or two piles of ``dump_n`` elements), caches them under --out, runs each
+Real piles are dumped: 15-20 elements poured into a ring fence that is then removed, so the pile
+slumps (sonardet.sim.layout, arrangement ``pile`` with a fence). The workflow's scenes hold such a
+pile in a share ``scenes.dump_fraction`` of them; this benchmark makes N scenes with the project's
+simulator where every scene has one (the config's scenes with ``dump_fraction`` 1 and a class mix
+of 45 % tetrapod_s: one pile of ``dump_n`` elements, the class's other arranged elements in rows),
+caches them under --out, runs each
 model-based variant on them and prints, per variant, the nuScenes centre-distance AP at the headline
 threshold of the objects in dumped piles (every object outside them is don't-care, as in
 benchmarks/piles.py), by class, with the pile sizes and the layers seen, and the mAP of the whole

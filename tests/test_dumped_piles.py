@@ -77,3 +77,37 @@ def test_no_dump_keeps_the_rows():
         validate_config({"scenes": {"dump_n": [20, 15]}})
     with pytest.raises(ConfigError, match="dump_fraction"):
         validate_config({"scenes": {"dump_fraction": 1.5}})
+
+
+def test_default_scenes_dump_full_size_piles_and_keep_the_total():
+    """The default distribution has dumped piles of dump_n (15-20) tetrapod_s in about dump_fraction of
+    the scenes; a scene that drew fewer takes the shortfall from the other classes, its total kept."""
+    from sonardet.sim.layout import draw_dumps
+    from sonardet.sim.scene import class_counts
+
+    cfg = validate_config({})
+    sc = cfg["scenes"]
+    assert sc["dump_fraction"] == 0.5 and sc["dump_n"] == [15, 20]
+    rng = np.random.default_rng(0)
+    sizes, short = [], 0
+    for _ in range(200):
+        counts = class_counts(sc, cfg["classes"], rng)
+        before = dict(counts)
+        dumps = draw_dumps(counts, sc, rng)
+        assert sum(counts.values()) == sum(before.values())
+        assert set(dumps) <= {"tetrapod_s"}
+        if dumps:
+            sizes.append(dumps["tetrapod_s"])
+            short += before["tetrapod_s"] < dumps["tetrapod_s"]
+            assert counts["tetrapod_s"] >= dumps["tetrapod_s"]
+            assert all(counts[c] <= before[c] for c in counts if c != "tetrapod_s")
+    assert 70 <= len(sizes) <= 130 and min(sizes) >= 15 and max(sizes) <= 20
+    assert short > 0  # the borrowing did happen
+    # a small scene keeps half of its other objects; no draw at all with dump_fraction 0
+    counts = {"reef_ring": 2, "reef_cone": 2, "tetrapod_b": 0, "tetrapod_s": 1}
+    assert draw_dumps(counts, {**sc, "dump_fraction": 1.0}, np.random.default_rng(1)) == {"tetrapod_s": 3}
+    assert counts == {"reef_ring": 1, "reef_cone": 1, "tetrapod_b": 0, "tetrapod_s": 3}
+    rng = np.random.default_rng(2)
+    state = rng.bit_generator.state
+    assert draw_dumps({"tetrapod_s": 20}, {**sc, "dump_fraction": 0.0}, rng) == {}
+    assert rng.bit_generator.state == state

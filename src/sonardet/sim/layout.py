@@ -7,7 +7,8 @@ sonardet.objects.classes), used for a share of a scene's objects; the rest are s
   gaps of the one below; a share ``scenes.dump_fraction`` of the piles is instead *dumped*: 15-20
   (``scenes.dump_n``) elements with random 3-D orientations poured one above the other into a ring
   fence (:class:`Fence`) that the physics removes once they rest, so the pile slumps
-  (sonardet.sim.scene.settle_dumps);
+  (sonardet.sim.scene.settle_dumps). ``dump_fraction`` is the chance that a scene has one dumped pile
+  of each piled class (:func:`draw_dumps`); the class's other arranged elements are laid in rows;
 - spaced (tetrapod_b): single elements big_spacing_m apart;
 - scatter: none (scattered only).
 
@@ -172,24 +173,6 @@ class _Planner:
             n_group -= placed
         return n_group
 
-    def piles(self, cls: str, n_group: int) -> int:
-        """Piles of `cls`: each group dumped into a fence with probability scenes.dump_fraction, else
-        rows (:meth:`rows`, one group of up to pile_max). Returns how many could not be placed."""
-        frac = float(self.cfg["dump_fraction"])
-        if frac <= 0:  # no draw at all: layouts without dumps are those of the rows alone
-            return self.rows(cls, n_group, "pile")
-        left = 0
-        while n_group > 0:
-            if self.rng.random() < frac:
-                lo, hi = self.cfg["dump_n"]
-                k = min(n_group, int(self.rng.integers(lo, hi + 1)))
-                left += self.dump(cls, k)
-            else:
-                k = min(n_group, self.cfg["pile_max"])
-                left += self.rows(cls, k, "pile")
-            n_group -= k
-        return left
-
     def dump(self, cls: str, k: int) -> int:
         """One pile of k elements poured into a ring fence: random 3-D orientations, random spots inside
         the fence, each spawned at the lowest height where its bounding sphere clears the seabed and
@@ -268,6 +251,34 @@ class _Planner:
             self.spawn_at(cls, c[0], c[1], q, "scatter", -1, 0)
 
 
+def draw_dumps(counts: dict, cfg: dict, rng: np.random.Generator) -> dict:
+    """Dumped piles of one scene: class -> elements in its dumped pile, for the classes whose arrangement
+    is `pile`, each with probability scenes.dump_fraction (no draw at all when it is 0, so layouts
+    without dumps are those of earlier versions). A pile holds dump_n elements (uniform in [min, max]);
+    when the scene drew fewer of the class, the shortfall is taken from the other classes, the most
+    numerous first (ties by name), at most half of their objects (a small scene, e.g. a hybrid one,
+    keeps a mix), so the scene's total is kept and a dumped pile has the size real dumps have. `counts` (class -> objects) is updated in place; a class drawn with no element gets
+    no pile (its weight in scenes.class_mix may be 0)."""
+    frac = float(cfg["dump_fraction"])
+    out: dict = {}
+    if frac <= 0:
+        return out
+    lo, hi = cfg["dump_n"]
+    for cls in sorted(counts):
+        if classes.get(cls).arrangement != "pile" or counts[cls] <= 0 or rng.random() >= frac:
+            continue
+        k = int(rng.integers(lo, hi + 1))
+        budget = sum(n for c, n in counts.items() if c != cls and c not in out) // 2
+        while counts[cls] < k and budget > 0:
+            budget -= 1
+            donors = [c for c in sorted(counts) if c != cls and c not in out and counts[c] > 0]
+            donor = max(donors, key=lambda c: counts[c])  # first of the most numerous (names sorted)
+            counts[donor] -= 1
+            counts[cls] += 1
+        out[cls] = min(k, counts[cls])
+    return out
+
+
 def plan_layout(counts: dict, radius_m: dict, height_m: dict, vertices: dict, extent_xy, cfg: dict,
                 ground_z, rng: np.random.Generator) -> tuple[list[Spawn], list[str]]:
     """Plan spawns for `counts` objects per class inside extent_xy = (xmin, xmax, ymin, ymax).
@@ -275,21 +286,26 @@ def plan_layout(counts: dict, radius_m: dict, height_m: dict, vertices: dict, ex
     radius_m / height_m: horizontal radius and height of each class (m); vertices: (V,3) canonical
     vertices of each class (to place a rotated body just above the ground); cfg: the `scenes`
     section; ground_z(x, y) -> seabed elevation (m). Each class's arrangement comes from its spec
-    (sonardet.objects.classes). Returns the spawns and a list of messages about objects that could
+    (sonardet.objects.classes); dumped piles (`draw_dumps`) may move a few objects between classes,
+    the total kept. Returns the spawns and a list of messages about objects that could
     not be placed (never dropped silently: the caller logs and records them).
     """
     plan = _Planner(radius_m, height_m, vertices, extent_xy, cfg, ground_z, rng)
     unplaced: list[str] = []
     scatter_share = rng.uniform(*cfg["scatter_fraction"])
+    counts = {c: int(k) for c, k in counts.items()}
+    dumps = draw_dumps(counts, cfg, rng)
     for cls in sorted(counts):
-        n = int(counts[cls])
+        n = counts[cls] - dumps.get(cls, 0)
         n_scatter = int(round(n * scatter_share))
         n_group = n - n_scatter
         arrangement = classes.get(cls).arrangement
+        if dumps.get(cls):
+            n_scatter += plan.dump(cls, dumps[cls])
         if n_group > 0 and arrangement == "cluster":
             n_scatter += plan.clusters(cls, n_group)
         elif n_group > 0 and arrangement == "pile":
-            n_scatter += plan.piles(cls, n_group)
+            n_scatter += plan.rows(cls, n_group, "pile")
         elif n_group > 0 and arrangement == "stack":
             n_scatter += plan.rows(cls, n_group, arrangement)
         elif n_group > 0 and arrangement == "spaced":
