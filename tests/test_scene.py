@@ -21,7 +21,7 @@ SMALL = {
     "sensor": {"n_beams": 256},
     "scenes": {"n_scenes": 3, "extent_m": [18, 18], "n_objects": [11, 12],
                "class_mix": {"tetrapod_s": 0.4, "reef_ring": 0.3, "reef_cone": 0.15, "tetrapod_b": 0.15}, "n_rocks": [2, 3], "cluster_max": 4,
-               "pile_max": 5, "big_spacing_m": [5, 6], "scatter_fraction": [0.2, 0.3],
+               "pile_max": 5, "big_spacing_m": [5, 6], "scatter_fraction": [0.2, 0.3], "dump_fraction": 0.0,
                "physics": {"max_time_s": 5.0}},
     "split": {"n_test": 1, "n_dev": 1},
 }
