@@ -35,7 +35,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from detect import read_inputs  # benchmarks/detect.py
-from piles import arrangement_ap  # benchmarks/piles.py
+from piles import arrangement_ap, in_arrangement  # benchmarks/piles.py
 from scene_cache import make_scenes  # benchmarks/scene_cache.py
 
 from sonardet.config import read_config, validate_config
@@ -60,7 +60,7 @@ def pile_config(cfg: dict, pile_class: str) -> dict:
 
 def _piles(meta: dict) -> str:
     """The sizes of a scene's dumped piles, for its progress line."""
-    piles = Counter(o["group"] for o in meta["objects"] if o.get("arrangement") == "pile")
+    piles = Counter(o["group"] for o in meta["objects"] if in_arrangement(o, "dumped"))
     return f"dumped piles {sorted(piles.values())}"
 
 
@@ -89,7 +89,7 @@ def main() -> None:
     gt = {sid: [o for o in json.loads((out / f"{sid}.json").read_text())["objects"] if o.get("visible", True)]
           for sid in ids}
     points = {sid: read_scene_points(out / f"{sid}.npz")["xyz"] for sid in ids}
-    members = [(s, o) for s, objs in gt.items() for o in objs if o.get("arrangement") == "pile"]
+    members = [(s, o) for s, objs in gt.items() for o in objs if in_arrangement(o, "dumped")]
     sizes = sorted(Counter((s, o["group"]) for s, o in members).values())
     layers = dict(sorted(Counter(int(o.get("layer", 0)) for _, o in members).items()))
     ev = cfg["evaluation"]
@@ -105,7 +105,7 @@ def main() -> None:
             dets[sid] = [d for d in found if (d.get("extras") or {}).get("accepted", True)]
         whole = evaluate(gt, dets, classes, ev["dist_thresholds_m"], ev["headline_m"], min_recall=ev["min_recall"],
                          min_precision=ev["min_precision"])
-        for cls, (ap_, n) in arrangement_ap(gt, dets, classes, "pile", ev).items():
+        for cls, (ap_, n) in arrangement_ap(gt, dets, classes, "dumped", ev).items():
             if n:
                 rows.append({"variant": variant, "class": cls, "AP_piles": ap_, "objects": n, "pile_sizes": sizes,
                              "layers": layers, "mAP_scenes": whole["mAP_headline"], "s_per_scene": sum(secs) / len(secs),

@@ -9,7 +9,7 @@ arrangement, class, AP, objects (visible, in that arrangement), the largest grou
 pile or stack) and the layers seen.
 
     python benchmarks/piles.py [--results results] [--dataset dev] [--methods model_based_ours,...]
-                               [--arrangements pile,stack] [--json out.json]
+                               [--arrangements pile,dumped,stack] [--json out.json]
 
 Needs results/detections/<method>/<dataset>/*.json and the scene JSONs (results/scenes, or
 results/mismatch/scenes for the mismatch sets).
@@ -29,9 +29,18 @@ from sonardet.io.annotations import read_detections
 SCENE_DIRS = {"dev": "scenes", "synthetic": "scenes", "mismatch": "mismatch/scenes", "mismatch_dev": "mismatch/scenes"}
 
 
+def in_arrangement(obj: dict, arrangement: str) -> bool:
+    """Whether a ground-truth object belongs to `arrangement`: its scene JSON's `arrangement`, or, for
+    the pseudo-arrangement 'dumped', the members of a dumped pile (`dumped`; their arrangement is 'pile')."""
+    if arrangement == "dumped":
+        return bool(obj.get("dumped", False))
+    return obj.get("arrangement") == arrangement
+
+
 def arrangement_ap(gt: dict, dets: dict, classes: list, arrangement: str, ev: dict) -> dict:
-    """Class -> AP at ev['headline_m'] over the visible objects of `arrangement` (others don't-care)."""
-    marked = {s: [{**o, "ignore": o.get("arrangement") != arrangement} for o in objs] for s, objs in gt.items()}
+    """Class -> AP at ev['headline_m'] over the visible objects of `arrangement` (others don't-care;
+    `in_arrangement`)."""
+    marked = {s: [{**o, "ignore": not in_arrangement(o, arrangement)} for o in objs] for s, objs in gt.items()}
     res = evaluate(marked, dets, classes, ev["dist_thresholds_m"], ev["headline_m"], min_recall=ev["min_recall"],
                    min_precision=ev["min_precision"])
     key = repr(float(ev["headline_m"]))
@@ -44,7 +53,8 @@ def main() -> None:
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--dataset", default="dev")
     ap.add_argument("--methods", default="model_based_ours")
-    ap.add_argument("--arrangements", default="pile,stack")
+    ap.add_argument("--arrangements", default="pile,dumped,stack",
+                    help="arrangements to score; 'dumped' is the members of dumped piles (a subset of 'pile')")
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
     if a.dataset in ("synthetic", "mismatch"):
@@ -65,7 +75,7 @@ def main() -> None:
             dets[f.stem] = [d for d in read_detections(f, classes)["detections"]
                             if (d.get("extras") or {}).get("accepted", True)]
         for arr in a.arrangements.split(","):
-            members = [(s, o) for s, objs in gt.items() for o in objs if o.get("arrangement") == arr]
+            members = [(s, o) for s, objs in gt.items() for o in objs if in_arrangement(o, arr)]
             groups = Counter((s, o.get("group")) for s, o in members)
             layers = sorted({int(o.get("layer", 0)) for _, o in members})
             for cls, (ap_, n) in arrangement_ap(gt, dets, classes, arr, ev).items():

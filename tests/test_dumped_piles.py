@@ -36,6 +36,7 @@ def test_a_dumped_pile_is_one_group_in_layers(dumped):
     assert not scene.meta["removed"], scene.meta["removed"]
     assert len(objs) == 10 and {o["arrangement"] for o in objs} == {"pile"}
     assert len({o["group"] for o in objs}) == 1
+    assert all(o["dumped"] for o in objs)  # marked in the scene JSON (benchmarks/piles.py 'dumped')
     layers = [o["layer"] for o in objs]
     assert min(layers) == 0 and max(layers) >= 1, layers  # some rest on others after the slump
     assert "dump_physics_s" in scene.meta["timings_s"]

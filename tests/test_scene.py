@@ -134,6 +134,7 @@ def test_piles_have_upper_layers(small):
     _, _, scene = small
     layers = [o["layer"] for o in scene.meta["objects"] if o["arrangement"] in ("pile", "stack")]
     assert layers and max(layers) >= 1
+    assert not any(o["dumped"] for o in scene.meta["objects"])  # dump_fraction 0: rows only
 
 
 def test_split_is_nested_and_disjoint():

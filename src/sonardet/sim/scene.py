@@ -448,6 +448,7 @@ def annotate_objects(kept, spawns, objects: dict[str, ObjectInfo], label: np.nda
             "n_points": int(n_pts[idx]),
             "visible": bool(n_pts[idx] >= min_points_visible),
             "arrangement": sp.arrangement, "group": int(sp.group), "layer": int(sp.layer),
+            "dumped": sp.fence is not None,
         })
         if buried is not None:
             objs[-1]["burial_m"] = float(buried[idx])
