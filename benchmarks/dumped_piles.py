@@ -45,12 +45,14 @@ from sonardet.io.scenes import read_scene_points
 from sonardet.objects import classes as class_specs
 
 #: Share of the scene's objects that are tetrapod_s (the rest split evenly): with the default 50-60
-#: objects and scatter_fraction [0.1, 0.3], 19-27 tetrapod_s are grouped, one or two dumped piles.
+#: objects, 22-27 tetrapod_s, so a scene's dumped pile (dump_fraction 1: one per scene) needs no
+#: objects of other classes and some of the class remain for rows and scatter.
 PILE_CLASS_SHARE = 0.45
 
 
 def pile_config(cfg: dict, pile_class: str) -> dict:
-    """The config's scenes with every `pile_class` group dumped and that class at PILE_CLASS_SHARE."""
+    """The config's scenes with a dumped pile of `pile_class` in every scene and that class at
+    PILE_CLASS_SHARE."""
     others = [c for c in cfg["classes"] if c != pile_class]
     mix = {c: (1 - PILE_CLASS_SHARE) / max(1, len(others)) for c in others} | {pile_class: PILE_CLASS_SHARE}
     raw = json.loads(json.dumps(cfg))

@@ -257,8 +257,9 @@ def draw_dumps(counts: dict, cfg: dict, rng: np.random.Generator) -> dict:
     without dumps are those of earlier versions). A pile holds dump_n elements (uniform in [min, max]);
     when the scene drew fewer of the class, the shortfall is taken from the other classes, the most
     numerous first (ties by name), at most half of their objects (a small scene, e.g. a hybrid one,
-    keeps a mix), so the scene's total is kept and a dumped pile has the size real dumps have. `counts` (class -> objects) is updated in place; a class drawn with no element gets
-    no pile (its weight in scenes.class_mix may be 0)."""
+    keeps a mix), so the scene's total is kept and a dumped pile has the size real dumps have.
+    `counts` (class -> objects) is updated in place; a class drawn with no element gets no pile (its
+    weight in scenes.class_mix may be 0)."""
     frac = float(cfg["dump_fraction"])
     out: dict = {}
     if frac <= 0:
@@ -268,10 +269,9 @@ def draw_dumps(counts: dict, cfg: dict, rng: np.random.Generator) -> dict:
         if classes.get(cls).arrangement != "pile" or counts[cls] <= 0 or rng.random() >= frac:
             continue
         k = int(rng.integers(lo, hi + 1))
-        budget = sum(n for c, n in counts.items() if c != cls and c not in out) // 2
-        while counts[cls] < k and budget > 0:
-            budget -= 1
-            donors = [c for c in sorted(counts) if c != cls and c not in out and counts[c] > 0]
+        donors = [c for c in sorted(counts) if c != cls and c not in out]
+        budget = sum(counts[c] for c in donors) // 2
+        for _ in range(min(max(k - counts[cls], 0), budget)):
             donor = max(donors, key=lambda c: counts[c])  # first of the most numerous (names sorted)
             counts[donor] -= 1
             counts[cls] += 1
