@@ -8,8 +8,8 @@ of 45 % tetrapod_s: one pile of ``dump_n`` elements, the class's other arranged 
 caches them under --out, runs each
 model-based variant on them and prints, per variant, the nuScenes centre-distance AP at the headline
 threshold of the objects in dumped piles (every object outside them is don't-care, as in
-benchmarks/piles.py), by class, with the pile sizes and the layers seen, and the mAP of the whole
-scenes.
+benchmarks/piles.py), by class, with its 95 % bootstrap interval over the scenes, the pile sizes,
+the layers seen and the mAP of the whole scenes.
 
 The scene ids (``d0000``...) are not workflow ids, and their seeds derive from the config's seed and
 that id, so the scenes are neither test nor dev scenes of the workflow: like the dev sets, they are
@@ -35,7 +35,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from detect import read_inputs  # benchmarks/detect.py
-from piles import arrangement_ap, in_arrangement  # benchmarks/piles.py
+from piles import arrangement_ap, arrangement_interval, in_arrangement  # benchmarks/piles.py
 from scene_cache import make_scenes  # benchmarks/scene_cache.py
 
 from sonardet.config import read_config, validate_config
@@ -109,13 +109,15 @@ def main() -> None:
                          min_precision=ev["min_precision"])
         for cls, (ap_, n) in arrangement_ap(gt, dets, classes, "dumped", ev).items():
             if n:
-                rows.append({"variant": variant, "class": cls, "AP_piles": ap_, "objects": n, "pile_sizes": sizes,
+                rows.append({"variant": variant, "class": cls, "AP_piles": ap_,
+                             "AP_interval": arrangement_interval(gt, dets, cls, "dumped", ev), "objects": n, "pile_sizes": sizes,
                              "layers": layers, "mAP_scenes": whole["mAP_headline"], "s_per_scene": sum(secs) / len(secs),
                              "scenes": len(ids), "params": params, "loadavg": list(os.getloadavg())})
-    print("variant | class | AP@headline in dumped piles | members | pile sizes | members per layer | "
-          "mAP of the scenes | s/scene | load")
+    print("variant | class | AP@headline in dumped piles | 95 % interval (scenes) | members | pile sizes | "
+          "members per layer | mAP of the scenes | s/scene | load")
     for r in rows:
-        print(f"{r['variant']} | {r['class']} | {r['AP_piles']:.3f} | {r['objects']} | {r['pile_sizes']} | "
+        lo, hi = r["AP_interval"]
+        print(f"{r['variant']} | {r['class']} | {r['AP_piles']:.3f} | {lo:.3f}-{hi:.3f} | {r['objects']} | {r['pile_sizes']} | "
               f"{r['layers']} | {r['mAP_scenes']:.3f} | {r['s_per_scene']:.1f} | "
               f"{' '.join(f'{v:.1f}' for v in r['loadavg'])}")
     if a.json:

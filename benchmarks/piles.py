@@ -4,9 +4,10 @@ For one dataset of a finished run (default: the dev scenes; the test split is fo
 evaluation only) and each method given, every visible ground-truth object that is not in the chosen
 arrangement is made don't-care (`ignore`: a detection on it is neither a true nor a false positive,
 `sonardet.eval.matching`), and the nuScenes centre-distance AP at the headline threshold is computed
-per class with the project's evaluator (`sonardet.eval.evaluate.evaluate`). Rows: method,
-arrangement, class, AP, objects (visible, in that arrangement), the largest group (objects of one
-pile or stack) and the layers seen.
+per class with the project's evaluator (`sonardet.eval.evaluate.evaluate`), with its 95 % bootstrap
+interval over scenes (`sonardet.eval.bootstrap`, 1000 resamples, seed 0). Rows: method, arrangement,
+class, AP, interval, objects (visible, in that arrangement), the largest group (objects of one pile or
+stack) and the layers seen.
 
     python benchmarks/piles.py [--results results] [--dataset dev] [--methods model_based_ours,...]
                                [--arrangements pile,dumped,stack] [--json out.json]
@@ -23,6 +24,7 @@ from collections import Counter
 from pathlib import Path
 
 from sonardet.config import read_config
+from sonardet.eval.bootstrap import bootstrap_map, interval, scene_flags
 from sonardet.eval.evaluate import evaluate
 from sonardet.io.annotations import read_detections
 
@@ -37,11 +39,25 @@ def in_arrangement(obj: dict, arrangement: str) -> bool:
     return obj.get("arrangement") == arrangement
 
 
+def _marked(gt: dict, arrangement: str) -> dict:
+    """gt with every object outside `arrangement` made don't-care."""
+    return {s: [{**o, "ignore": not in_arrangement(o, arrangement)} for o in objs] for s, objs in gt.items()}
+
+
+def arrangement_interval(gt: dict, dets: dict, cls: str, arrangement: str, ev: dict,
+                         n_resamples: int = 1000) -> tuple[float, float]:
+    """95 % percentile bootstrap interval over scenes of class `cls`'s AP at ev['headline_m'] over the
+    visible objects of `arrangement` (others don't-care), as `arrangement_ap` computes it."""
+    scenes = sorted(gt)
+    flags = scene_flags(_marked(gt, arrangement), dets, [cls], scenes, float(ev["headline_m"]))
+    samples = bootstrap_map({"m": flags}, n_resamples, 0, ev["min_recall"], ev["min_precision"])["m"]
+    return interval(samples)
+
+
 def arrangement_ap(gt: dict, dets: dict, classes: list, arrangement: str, ev: dict) -> dict:
     """Class -> AP at ev['headline_m'] over the visible objects of `arrangement` (others don't-care;
     `in_arrangement`)."""
-    marked = {s: [{**o, "ignore": not in_arrangement(o, arrangement)} for o in objs] for s, objs in gt.items()}
-    res = evaluate(marked, dets, classes, ev["dist_thresholds_m"], ev["headline_m"], min_recall=ev["min_recall"],
+    res = evaluate(_marked(gt, arrangement), dets, classes, ev["dist_thresholds_m"], ev["headline_m"], min_recall=ev["min_recall"],
                    min_precision=ev["min_precision"])
     key = repr(float(ev["headline_m"]))
     return {c: (float(v["AP"][key]), int(v["n_gt"])) for c, v in res["per_class"].items()}
@@ -81,11 +97,14 @@ def main() -> None:
             for cls, (ap_, n) in arrangement_ap(gt, dets, classes, arr, ev).items():
                 if n:
                     rows.append({"method": method, "dataset": a.dataset, "arrangement": arr, "class": cls, "AP": ap_,
-                                 "objects": n, "largest_group": max(groups.values()), "layers": layers,
+                                 "AP_interval": arrangement_interval(gt, dets, cls, arr, ev), "objects": n, "largest_group": max(groups.values()), "layers": layers,
                                  "scenes": len(gt)})
-    print("method | dataset | arrangement | class | AP@headline | objects | largest group | layers | scenes")
+    print("method | dataset | arrangement | class | AP@headline | 95 % interval | objects | largest group | layers | "
+          "scenes")
     for r in rows:
-        print(f"{r['method']} | {r['dataset']} | {r['arrangement']} | {r['class']} | {r['AP']:.3f} | {r['objects']} | "
+        lo, hi = r["AP_interval"]
+        print(f"{r['method']} | {r['dataset']} | {r['arrangement']} | {r['class']} | {r['AP']:.3f} | {lo:.3f}-{hi:.3f} | "
+              f"{r['objects']} | "
               f"{r['largest_group']} | {r['layers']} | {r['scenes']}")
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1) + "\n")

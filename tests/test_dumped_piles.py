@@ -112,3 +112,30 @@ def test_default_scenes_dump_full_size_piles_and_keep_the_total():
     state = rng.bit_generator.state
     assert draw_dumps({"tetrapod_s": 20}, {**sc, "dump_fraction": 0.0}, rng) == {}
     assert rng.bit_generator.state == state
+
+
+def test_the_pile_interval_brackets_the_pile_ap_and_ignores_other_objects():
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+    from piles import arrangement_ap, arrangement_interval
+
+    ev = {"headline_m": 0.5, "dist_thresholds_m": [0.5, 1.0], "min_recall": 0.1, "min_precision": 0.1}
+
+    def obj(x, dumped, score=None):
+        o = {"cls": "tetrapod_s", "box": [x, 0.0, -11.0, 1.4, 1.4, 1.4, 0.0], "dumped": dumped}
+        return o | ({"score": score} if score is not None else {})
+
+    gt = {f"d{k}": [obj(0, True), obj(3, True), obj(9, False)] for k in range(6)}
+    # Every pile member found; in half the scenes the one outside the pile is missed (don't care).
+    dets = {s: [obj(0.1, True, 0.9), obj(3.1, True, 0.8)] + ([obj(9, False, 0.7)] if k % 2 else [])
+            for k, s in enumerate(gt)}
+    assert arrangement_ap(gt, dets, ["tetrapod_s"], "dumped", ev)["tetrapod_s"] == (pytest.approx(1.0), 12)
+    assert arrangement_interval(gt, dets, "tetrapod_s", "dumped", ev) == (pytest.approx(1.0), pytest.approx(1.0))
+    # Half the scenes lose one member: the AP falls and the interval has width and holds it.
+    for s in list(gt)[:3]:
+        dets[s] = dets[s][:1]
+    ap = arrangement_ap(gt, dets, ["tetrapod_s"], "dumped", ev)["tetrapod_s"][0]
+    lo, hi = arrangement_interval(gt, dets, "tetrapod_s", "dumped", ev)
+    assert ap < 1.0 and lo <= ap <= hi and hi - lo > 0.05

@@ -110,6 +110,53 @@ def test_points_of_an_object_above_do_not_count_as_overhang():
     assert height_consistency(low, np.ones(12, bool), params) == pytest.approx(0.2)
 
 
+def _member(cand, inl_idx, f_t=0.9, rmse_m=0.02, cls="tetrapod_s"):
+    cand = np.asarray(cand)
+    return Hypothesis(cls, np.eye(3), np.zeros(3), np.zeros(7), f_t=f_t, rmse_m=rmse_m,
+                      cand=cand, inl=np.isin(cand, inl_idx), over_range_m=0.0)
+
+
+def test_touching_pile_members_do_not_count_against_each_other():
+    from sonardet.detect.model_based.scoring import rescore, support_neighbours
+
+    # Points 0-9 are member a's surface, 10-19 member b's; each box holds 5 of the other's points.
+    params = {"neighbour_support_overlap_max_frac": 0.2, "neighbour_support_f_t_min": 0.6}
+    rmse_max = {"tetrapod_s": 0.05, "tetrapod_b": 0.05}
+    active = np.ones(40, bool)
+    a = _member(np.r_[0:10, 10:15], np.arange(0, 10))
+    b = _member(np.r_[10:20, 5:10], np.arange(10, 20))
+    assert rescore(a, active, 0.05, params | {"overhang_min_points_n": 5}) == pytest.approx(0.9 * 10 / 15 * 0.84)
+    support_neighbours([a, b], [a, b], 40, rmse_max, params)
+    assert a.cand_free.tolist() == [True] * 10 + [False] * 5
+    rescore(a, active, 0.05, params | {"overhang_min_points_n": 5})
+    rescore(b, active, 0.05, params | {"overhang_min_points_n": 5})
+    assert a.f_s == 1.0 and b.f_s == 1.0
+    # Points nobody explains keep counting: c's box also holds 20-24, inliers of no hypothesis.
+    c = _member(np.r_[0:10, 20:25], np.arange(0, 10))
+    support_neighbours([c], [b], 40, rmse_max, params)
+    rescore(c, active, 0.05, params | {"overhang_min_points_n": 5})
+    assert c.f_s == pytest.approx(10 / 15)
+
+
+@pytest.mark.parametrize("case", ["same object", "poor coverage", "poor fit", "off"])
+def test_fits_of_one_object_and_poor_fits_support_nothing(case):
+    from sonardet.detect.model_based.scoring import support_neighbours
+
+    params = {"neighbour_support_overlap_max_frac": 0.2, "neighbour_support_f_t_min": 0.6}
+    a = _member(np.r_[0:10, 10:15], np.arange(0, 10))
+    if case == "same object":  # a small class on part of a big object: most inliers shared
+        other = _member(np.r_[0:15], np.r_[3:15], cls="tetrapod_b")
+    elif case == "poor coverage":
+        other = _member(np.r_[10:20], np.arange(10, 20), f_t=0.3)
+    elif case == "poor fit":
+        other = _member(np.r_[10:20], np.arange(10, 20), rmse_m=0.2)
+    else:
+        other = _member(np.r_[10:20], np.arange(10, 20))
+        params["neighbour_support_overlap_max_frac"] = 0.0
+    support_neighbours([a], [a, other], 40, {"tetrapod_s": 0.05, "tetrapod_b": 0.05}, params)
+    assert a.cand_free is None or a.cand_free.all()
+
+
 def test_template_views_move_along_the_normals_of_their_nearest_surface_samples(objects, templates):  # noqa: F811
     """The prepared views (scoring.CoverageViews) offset exactly as a per-hypothesis tree query would."""
     from sonardet.detect.model_based.models import build_class_model

@@ -61,6 +61,7 @@ from .scoring import (
     rescore,
     score_hypothesis,
     shape_tolerance_m,
+    support_neighbours,
     support_overhangs,
     tolerant_distance,
     view_points,
@@ -642,8 +643,9 @@ def _select(st, classes, pending, accepted, p, stats):
     rmse_max = {c: per_class(p["rmse_max_m"], c) for c in classes}
     if p["overhang_max_frac"] > 0:  # objects under others (piles, stacks) keep their score
         support_overhangs(pending, len(st.active))
-        for h in pending:
-            rescore(h, st.active, rmse_max[h.cls], p)
+    support_neighbours(pending, pending, len(st.active), rmse_max, p)
+    for h in pending:
+        rescore(h, st.active, rmse_max[h.cls], p)
     while pending:
         i = int(np.argmax([h.score for h in pending]))
         h = pending[i]

@@ -110,6 +110,8 @@ DEFAULTS: dict = {
     "score_min": 0.15,
     "accept_min": 0.35,
     "new_min_frac": 0.5,
+    "neighbour_support_overlap_max_frac": 0.2,
+    "neighbour_support_f_t_min": 0.6,
     "replace_factor": 1.5,
     "penetration_max_frac": 0.05,
     "sink_max_m": 0.25,
@@ -314,6 +316,10 @@ DESCRIPTIONS: dict = {
     "virtual_view_min_points_n": ("-", "virtual views with fewer points are not used"),
     "sink_vertex_stride_n": ("-", "every n-th mesh vertex is tested against the seabed (sink_max_m)"),
     "score_min": ("-", "hypotheses scoring less are dropped"),
+    "neighbour_support_overlap_max_frac": ("-", "pending hypotheses sharing at most this share of the smaller "
+                                           "inlier set support each other: a neighbour's inliers in one's box do "
+                                           "not lower its f_s (dumped piles; 0: off)"),
+    "neighbour_support_f_t_min": ("-", "least f_t of a pending hypothesis that supports its neighbours so"),
     "accept_min": ("-", "score needed to accept a hypothesis as an object (explain-away)"),
     "new_min_frac": ("-", "share of a hypothesis' inliers not yet explained needed to accept it"),
     "replace_factor": ("-", "a hypothesis whose inliers are mostly explained already may replace the accepted "

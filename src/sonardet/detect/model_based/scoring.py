@@ -22,7 +22,8 @@ coordinates into it. Definitions (per hypothesis):
   this box's top (`support_overhangs`), do not count;
 * f_s (scene -> model): inliers / candidates, both counted only over points not yet explained by an
   accepted object, so a clutter blob or a neighbour inside the box lowers it, while an object already
-  accepted (the ring on top of this one) does not;
+  accepted (the ring on top of this one) does not; nor do the inliers of a compatible pending
+  neighbour (`support_neighbours`: members of a pile whose legs reach into each other's boxes);
 * f_t (model -> scene): share of the template points that have a scene point within `coverage_m`, best
   over the class's template views (each view is a real scan with the sensor's occlusion pattern, so
   template parts the sonar cannot see are not asked for); tumbled poses, which the upright template
@@ -39,6 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage as ndi
+from scipy import sparse
 from scipy.spatial import cKDTree
 
 from ...geometry import matrix_to_quat, points_in_box
@@ -69,6 +71,9 @@ class Hypothesis:
     over_range_m: float = 0.0
     #: Which overhang points may count (False: an inlier of a hypothesis above this one).
     over_free: np.ndarray | None = None
+    #: Which candidate points count against f_s (False: an inlier of a compatible neighbour hypothesis,
+    #: see `support_neighbours`); None: all.
+    cand_free: np.ndarray | None = None
     cand: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     inl: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     upright: bool = True
@@ -335,6 +340,49 @@ def support_overhangs(hyps: list, n_points: int) -> None:
             h.over_free = support_z[h.over] <= top
 
 
+def support_neighbours(targets: list, supporters: list, n_points: int, rmse_max: dict, params: dict) -> None:
+    """Set `cand_free` of every hypothesis in `targets`: its candidate points that are not its own
+    inliers but are inliers of a compatible supporter do not count against its f_s.
+
+    In a dumped pile the legs of touching members reach into each other's boxes; while neither is
+    accepted, each one's points lower the other's f_s and both can stay below `accept_min`. A supporter
+    is a hypothesis of `supporters` with f_t >= `neighbour_support_f_t_min` and its RMSE within its
+    class limit `rmse_max` (m, per class); it is compatible with a target when they share at most
+    `neighbour_support_overlap_max_frac` of the smaller inlier set (two fits of one object, or a small
+    class on part of a big object, share most of theirs and do not excuse each other). Off when that
+    fraction is 0. n_points: size of the candidate point array the hypotheses index.
+
+    Written here because it is specific to this explain-away; it is one sparse product over the
+    hypotheses' inlier sets (scipy.sparse)."""
+    frac = float(params["neighbour_support_overlap_max_frac"])
+    if frac <= 0 or not targets:
+        return
+    f_t_min = float(params["neighbour_support_f_t_min"])
+    sup = [s for s in supporters if s.inl.any() and s.f_t >= f_t_min and s.rmse_m <= rmse_max[s.cls]]
+    if not sup:
+        return
+
+    def inlier_matrix(hs):
+        rows = np.concatenate([np.full(int(h.inl.sum()), i) for i, h in enumerate(hs)] + [np.zeros(0, int)])
+        cols = np.concatenate([h.cand[h.inl] for h in hs] + [np.zeros(0, np.int64)])
+        return sparse.csr_matrix((np.ones(len(rows), np.float32), (rows, cols)), shape=(len(hs), n_points))
+
+    it, isup = inlier_matrix(targets), inlier_matrix(sup)
+    shared = (it @ isup.T).toarray()  # inliers each target shares with each supporter
+    n_t = np.asarray(it.sum(1)).ravel()
+    n_s = np.asarray(isup.sum(1)).ravel()
+    ok = shared <= frac * np.minimum(n_t[:, None], n_s[None, :])
+    ok &= np.array([[t is not s for s in sup] for t in targets])
+    covered = (sparse.csr_matrix(ok.astype(np.float32)) @ isup).tocsr()  # (targets, points) > 0: excused
+    for i, h in enumerate(targets):
+        if len(h.cand) == 0:
+            continue
+        row = covered.getrow(i)
+        excused = np.zeros(n_points, bool)
+        excused[row.indices[row.data > 0]] = True
+        h.cand_free = h.inl | ~excused[h.cand]
+
+
 def shape_tolerance_m(model, params: dict) -> float:
     """How much thicker or thinner (m) than its model an object of the model's class may be:
     `shape_tolerance_frac` x the class's median half thickness (0 when off)."""
@@ -416,7 +464,7 @@ def rescore(h: Hypothesis, active: np.ndarray, rmse_max_m: float, params: dict) 
         h.f_s, h.score = 0.0, 0.0
         return 0.0
     a = active[h.cand]
-    n_act = int(a.sum())
+    n_act = int((a if h.cand_free is None else a & h.cand_free).sum())
     h.f_s = float((h.inl & a).sum() / n_act) if n_act else 0.0
     q = max(0.0, 1.0 - (h.rmse_m / rmse_max_m) ** 2)
     h.g_h = height_consistency(h, active, params)
