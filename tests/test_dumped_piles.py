@@ -139,3 +139,26 @@ def test_the_pile_interval_brackets_the_pile_ap_and_ignores_other_objects():
     ap = arrangement_ap(gt, dets, ["tetrapod_s"], "dumped", ev)["tetrapod_s"][0]
     lo, hi = arrangement_interval(gt, dets, "tetrapod_s", "dumped", ev)
     assert ap < 1.0 and lo <= ap <= hi and hi - lo > 0.05
+
+
+def test_every_raised_leg_of_a_pile_seeds_a_tumbled_hypothesis():
+    from types import SimpleNamespace
+
+    from sonardet.detect.model_based.ours import _residual_seeds
+    from sonardet.detect.model_based.params import resolve_params
+
+    # One cluster whose sounding density is one broad mound (a pile seen from above), 4 m x 1.5 m,
+    # with three raised legs.
+    rng = np.random.default_rng(0)
+    xy = rng.normal([2.0, 0.75], [1.2, 0.5], size=(20000, 2))
+    legs = np.array([[0.6, 0.75], [2.0, 0.75], [3.4, 0.75]])
+    d = np.min(np.hypot(*(xy[:, None, :] - legs[None]).transpose(2, 0, 1)), axis=1)
+    hab = 0.4 + np.clip(1.0 - d, 0.0, None)  # 1.4 m at each leg's tip, 0.4 m between
+    st = SimpleNamespace(pts=np.c_[xy, hab - 11.0], hab=hab)
+    p = resolve_params({}, "ours")
+    seeds = _residual_seeds(st, np.arange(len(xy)), p)
+    for leg in legs:
+        assert min(np.hypot(*(s - leg)) for s in seeds) < 0.2
+    assert len(seeds) <= p["residual_max_seeds_n"] + 1  # the cap, plus the centroid
+    plain = _residual_seeds(st, np.arange(len(xy)), resolve_params({"residual_height_seeds": False}, "ours"))
+    assert sum(min(np.hypot(*(s - leg)) for s in plain) < 0.2 for leg in legs) < 3

@@ -458,10 +458,35 @@ def _residual_seeds(st, g_idx, p) -> list:
     pi, pj = np.nonzero(peak)
     order = np.argsort(-dens[pi, pj], kind="stable")[: int(p["residual_max_seeds_n"])]
     seeds = [np.array([lo[0] + (pj[k] + 0.5) * cell, lo[1] + (pi[k] + 0.5) * cell]) for k in order]
+    if p["residual_height_seeds"]:
+        seeds += _height_seeds(st.hab[g_idx], i, j, shape, lo, seeds, p)
     c = xy.mean(0)
     if all(np.hypot(*(c - q)) > p["residual_centroid_sep_m"] for q in seeds):
         seeds.append(c)
     return seeds
+
+
+def _height_seeds(hab, i, j, shape, lo, seeds, p) -> list:
+    """More seeds (x, y) in a cluster of unexplained points: the local maxima of its height above the
+    seabed (per `residual_seed_cell_m` cell, maxima at least `residual_seed_sep_m` apart and
+    `residual_min_height_m` high), farther than that from every seed in `seeds`, highest first, up to
+    `residual_max_seeds_n` in all. In a dumped pile the density is one broad plateau with a few peaks,
+    while every element lifts a leg: its own local maximum of height, at every layer."""
+    cell = p["residual_seed_cell_m"]
+    top = np.full(shape, -np.inf)
+    np.maximum.at(top, (i, j), hab)
+    size = 2 * int(round(p["residual_seed_sep_m"] / cell)) + 1
+    peak = (top >= ndi.maximum_filter(top, size=size, mode="constant", cval=-np.inf)) & \
+        (top >= p["residual_min_height_m"])
+    pi, pj = np.nonzero(peak)
+    out = []
+    for k in np.argsort(-top[pi, pj], kind="stable"):
+        if len(seeds) + len(out) >= int(p["residual_max_seeds_n"]):
+            break
+        q = np.array([lo[0] + (pj[k] + 0.5) * cell, lo[1] + (pi[k] + 0.5) * cell])
+        if all(np.hypot(*(q - s_)) >= p["residual_seed_sep_m"] for s_ in seeds + out):
+            out.append(q)
+    return out
 
 
 def _seeding_points(st, classes, accepted, p) -> np.ndarray:

@@ -53,6 +53,7 @@ DEFAULTS: dict = {
     "residual_seed_pad_m": 1.0,
     "residual_seed_min_density_frac": 0.25,
     "residual_centroid_sep_m": 0.3,
+    "residual_height_seeds": True,
     "leftover_margin_m": 0.3,
     "leftover_claim_factor": 2.0,
     # Tumbled poses.
@@ -228,6 +229,8 @@ DESCRIPTIONS: dict = {
     "residual_seed_pad_m": ("m", "margin of that raster around the cluster (the smoothing is not cut off)"),
     "residual_seed_min_density_frac": ("-", "density peaks lower than this share of the cluster's highest "
                                             "density seed nothing"),
+    "residual_height_seeds": ("-", "also seed at the local maxima of the cluster's height above the seabed (one "
+                                   "raised leg per element of a dumped pile, at every layer)"),
     "residual_centroid_sep_m": ("m", "the cluster's centroid is a seed too unless a density peak is this close"),
     "leftover_margin_m": ("m", "leftovers of an accepted object are looked for within its radius + this and its "
                                "box grown by this"),
