@@ -158,7 +158,39 @@ def test_every_raised_leg_of_a_pile_seeds_a_tumbled_hypothesis():
     p = resolve_params({}, "ours")
     seeds = _residual_seeds(st, np.arange(len(xy)), p)
     for leg in legs:
-        assert min(np.hypot(*(s - leg)) for s in seeds) < 0.2
+        assert min(np.hypot(*(s - leg)) for s, _ in seeds) < 0.2
+    assert any(tip for _, tip in seeds) and not all(tip for _, tip in seeds)
     assert len(seeds) <= p["residual_max_seeds_n"] + 1  # the cap, plus the centroid
     plain = _residual_seeds(st, np.arange(len(xy)), resolve_params({"residual_height_seeds": False}, "ours"))
-    assert sum(min(np.hypot(*(s - leg)) for s in plain) < 0.2 for leg in legs) < 3
+    assert not any(tip for _, tip in plain)
+    assert sum(min(np.hypot(*(s - leg)) for s, _ in plain) < 0.2 for leg in legs) < 3
+
+
+@pytest.mark.parametrize("tip", [True, False])
+def test_a_tumbled_start_puts_the_raised_tip_under_a_height_seed(tip):
+    """At a height seed (tip) each pose starts with its highest point under the seed at the crop's top;
+    at a density seed it starts centred on the seed, on the seabed and lifted to the crop's top."""
+    from types import SimpleNamespace
+
+    from sonardet.detect.model_based.models import rot_x
+    from sonardet.detect.model_based.ours import _tumbled_starts
+    from sonardet.detect.model_based.params import resolve_params
+
+    # A model: a leg from the origin to (0.6, 0, 1.2) (a leaning member's raised leg) and a foot.
+    verts = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 1.2], [-0.6, 0.3, 0.0], [0.0, -0.6, 0.0]])
+    m = SimpleNamespace(vertices=verts)
+    ground = SimpleNamespace(z_at=lambda x, y: -11.0)
+    pts = np.array([[5.0, 5.0, -9.3], [5.2, 5.0, -10.5]])  # the crop's top 1.7 m above the seabed
+    st = SimpleNamespace(ground=ground, pts=pts, hab=pts[:, 2] + 11.0)
+    p = resolve_params({"tumbled_vertex_stride_n": 1}, "ours")
+    seed = np.array([5.0, 5.0])
+    starts = _tumbled_starts(st, m, [np.eye(3), rot_x(0.2)], seed, np.arange(2), p, tip)
+    tips = []
+    for R0, t0 in starts:
+        v = verts @ R0.T + t0
+        tips.append(v[np.argmax(v[:, 2])])
+    under = [np.allclose(q, [5.0, 5.0, -9.3]) for q in tips]
+    assert sum(under) == (2 if tip else 0)
+    assert len(starts) == (2 if tip else 4)  # tip; or seabed and lifted (1.7 m crop over a 1.2 m pose)
+    off = _tumbled_starts(st, m, [np.eye(3)], seed, np.arange(2), p | {"tumbled_tip_starts": False}, True)
+    assert len(off) == 2  # the option off: a height seed starts like any other

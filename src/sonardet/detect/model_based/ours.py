@@ -438,10 +438,11 @@ def _hypotheses_upright(st, classes, proposals, p, rnd, accepted, stats):
 
 
 def _residual_seeds(st, g_idx, p) -> list:
-    """Seed positions (x, y) in one cluster of unexplained points: the peaks of the smoothed point
+    """Seeds (x, y, is_tip) in one cluster of unexplained points: the peaks of the smoothed point
     density (Gaussian `residual_seed_sigma_m`, peaks at least `residual_seed_sep_m` apart), which sit
-    near the middle of each object's visible part even when objects touch or pile up; plus the
-    cluster's centroid unless a peak is `residual_centroid_sep_m` close."""
+    near the middle of each object's visible part even when objects touch or pile up; with
+    `residual_height_seeds` the cluster's height maxima (`_height_seeds`, is_tip True); plus the
+    cluster's centroid unless a seed is `residual_centroid_sep_m` close."""
     cell = p["residual_seed_cell_m"]
     pad = p["residual_seed_pad_m"]
     xy = st.pts[g_idx, :2]
@@ -458,12 +459,12 @@ def _residual_seeds(st, g_idx, p) -> list:
     pi, pj = np.nonzero(peak)
     order = np.argsort(-dens[pi, pj], kind="stable")[: int(p["residual_max_seeds_n"])]
     seeds = [np.array([lo[0] + (pj[k] + 0.5) * cell, lo[1] + (pi[k] + 0.5) * cell]) for k in order]
-    if p["residual_height_seeds"]:
-        seeds += _height_seeds(st.hab[g_idx], i, j, shape, lo, seeds, p)
+    tips = _height_seeds(st.hab[g_idx], i, j, shape, lo, seeds, p) if p["residual_height_seeds"] else []
     c = xy.mean(0)
-    if all(np.hypot(*(c - q)) > p["residual_centroid_sep_m"] for q in seeds):
-        seeds.append(c)
-    return seeds
+    out = [(q, False) for q in seeds] + [(q, True) for q in tips]
+    if all(np.hypot(*(c - q)) > p["residual_centroid_sep_m"] for q in seeds + tips):
+        out.append((c, False))
+    return out
 
 
 def _height_seeds(hab, i, j, shape, lo, seeds, p) -> list:
@@ -504,10 +505,13 @@ def _seeding_points(st, classes, accepted, p) -> np.ndarray:
     return np.flatnonzero(free)
 
 
-def _tumbled_starts(st, m, rots, xy, crop, p) -> list:
+def _tumbled_starts(st, m, rots, xy, crop, p, tip: bool = False) -> list:
     """Starts (R0, t0) of the tumbled poses `rots` at seed `xy`: each pose resting on the seabed, centred
     on the seed, and lifted to the crop's top when the crop is taller than the pose by more than
-    `top_start_min_lift_m` (it may rest on others). Poses taller than the crop allows are left out."""
+    `top_start_min_lift_m` (it may rest on others). At a tip seed (a height maximum: a raised leg's
+    tip, 0.4-0.7 m off the centre of a leaning pile member) with `tumbled_tip_starts`, instead each
+    pose with its highest point under the seed at the crop's top. Poses taller than the crop allows are
+    left out."""
     zg = float(st.ground.z_at(xy[0], xy[1]))
     ztop = float(st.pts[crop, 2].max())
     crop_h = float(st.hab[crop].max())
@@ -517,6 +521,10 @@ def _tumbled_starts(st, m, rots, xy, crop, p) -> list:
         v = m.vertices[::stride] @ R0.T
         if crop_h < p["proposal_min_height_frac"] * (v[:, 2].max() - v[:, 2].min()):
             continue  # the crop is too low for the object in this pose
+        if tip and p["tumbled_tip_starts"]:
+            top = v[np.argmax(v[:, 2])]
+            starts.append((R0, np.array([xy[0] - top[0], xy[1] - top[1], ztop - top[2]])))
+            continue
         c = 0.5 * (v.min(0) + v.max(0))
         base = np.array([xy[0] - c[0], xy[1] - c[1], zg - v[:, 2].min()])
         starts.append((R0, base))
@@ -536,7 +544,7 @@ def _hypotheses_tumbled(st, classes, p, rnd, accepted, stats):
         g = idx_act[grp]
         if float(st.hab[g].max()) < p["residual_min_height_m"]:
             continue
-        for xy in _residual_seeds(st, g, p):
+        for xy, tip in _residual_seeds(st, g, p):
             for cls, k in classes.items():
                 m = k.model
                 if not k.tumbled:
@@ -550,7 +558,7 @@ def _hypotheses_tumbled(st, classes, p, rnd, accepted, stats):
                 crop = _screened_crop(st, cls, m, xy, p, stats, st.tried_tumbled)
                 if crop is None:
                     continue
-                starts = _tumbled_starts(st, m, k.tumbled, xy, crop, p)
+                starts = _tumbled_starts(st, m, k.tumbled, xy, crop, p, tip)
                 if not starts:
                     stats["windows_skipped"] += 1
                     continue

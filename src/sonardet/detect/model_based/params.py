@@ -60,6 +60,7 @@ DEFAULTS: dict = {
     "tumbled_inits": True,
     "tumbled_shift_q_min": 0.45,
     "tumbled_screen_keep_n": 4,
+    "tumbled_tip_starts": True,
     "tumbled_vertex_stride_n": 5,
     "tumbled_azimuths_n": 8,
     "tumbled_stable_tilt_range_deg": [60.0, 150.0],
@@ -240,6 +241,8 @@ DESCRIPTIONS: dict = {
                       'try tumbled orientations (cone on its side, ring on edge, tilted tetrapods) on '
                       'unexplained clusters'),
     "tumbled_shift_q_min": ("-", "tumbled starts: shifted restarts already from this coarse quality"),
+    "tumbled_tip_starts": ("-", "at a height seed, tumbled starts with the pose's highest point under the seed at "
+                                "the crop's top (a raised leg's tip of a leaning pile member), not centred on it"),
     "tumbled_screen_keep_n": ("-",
                               'tumbled starts: only the best this many after the screening ICP go on to the coarse '
                               'stage'),
