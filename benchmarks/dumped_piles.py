@@ -110,15 +110,16 @@ def main() -> None:
         for cls, (ap_, n) in arrangement_ap(gt, dets, classes, "dumped", ev).items():
             if n:
                 rows.append({"variant": variant, "class": cls, "AP_piles": ap_,
-                             "AP_interval": arrangement_interval(gt, dets, cls, "dumped", ev), "objects": n, "pile_sizes": sizes,
-                             "layers": layers, "mAP_scenes": whole["mAP_headline"], "s_per_scene": sum(secs) / len(secs),
-                             "scenes": len(ids), "params": params, "loadavg": list(os.getloadavg())})
+                             "AP_interval": arrangement_interval(gt, dets, cls, "dumped", ev), "objects": n,
+                             "pile_sizes": sizes, "layers": layers, "mAP_scenes": whole["mAP_headline"],
+                             "s_per_scene": sum(secs) / len(secs), "scenes": len(ids), "params": params,
+                             "loadavg": list(os.getloadavg())})
     print("variant | class | AP@headline in dumped piles | 95 % interval (scenes) | members | pile sizes | "
           "members per layer | mAP of the scenes | s/scene | load")
     for r in rows:
         lo, hi = r["AP_interval"]
-        print(f"{r['variant']} | {r['class']} | {r['AP_piles']:.3f} | {lo:.3f}-{hi:.3f} | {r['objects']} | {r['pile_sizes']} | "
-              f"{r['layers']} | {r['mAP_scenes']:.3f} | {r['s_per_scene']:.1f} | "
+        print(f"{r['variant']} | {r['class']} | {r['AP_piles']:.3f} | {lo:.3f}-{hi:.3f} | {r['objects']} | "
+              f"{r['pile_sizes']} | {r['layers']} | {r['mAP_scenes']:.3f} | {r['s_per_scene']:.1f} | "
               f"{' '.join(f'{v:.1f}' for v in r['loadavg'])}")
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1) + "\n")

@@ -57,8 +57,8 @@ def arrangement_interval(gt: dict, dets: dict, cls: str, arrangement: str, ev: d
 def arrangement_ap(gt: dict, dets: dict, classes: list, arrangement: str, ev: dict) -> dict:
     """Class -> AP at ev['headline_m'] over the visible objects of `arrangement` (others don't-care;
     `in_arrangement`)."""
-    res = evaluate(_marked(gt, arrangement), dets, classes, ev["dist_thresholds_m"], ev["headline_m"], min_recall=ev["min_recall"],
-                   min_precision=ev["min_precision"])
+    res = evaluate(_marked(gt, arrangement), dets, classes, ev["dist_thresholds_m"], ev["headline_m"],
+                   min_recall=ev["min_recall"], min_precision=ev["min_precision"])
     key = repr(float(ev["headline_m"]))
     return {c: (float(v["AP"][key]), int(v["n_gt"])) for c, v in res["per_class"].items()}
 
@@ -97,15 +97,14 @@ def main() -> None:
             for cls, (ap_, n) in arrangement_ap(gt, dets, classes, arr, ev).items():
                 if n:
                     rows.append({"method": method, "dataset": a.dataset, "arrangement": arr, "class": cls, "AP": ap_,
-                                 "AP_interval": arrangement_interval(gt, dets, cls, arr, ev), "objects": n, "largest_group": max(groups.values()), "layers": layers,
-                                 "scenes": len(gt)})
+                                 "AP_interval": arrangement_interval(gt, dets, cls, arr, ev), "objects": n,
+                                 "largest_group": max(groups.values()), "layers": layers, "scenes": len(gt)})
     print("method | dataset | arrangement | class | AP@headline | 95 % interval | objects | largest group | layers | "
           "scenes")
     for r in rows:
         lo, hi = r["AP_interval"]
-        print(f"{r['method']} | {r['dataset']} | {r['arrangement']} | {r['class']} | {r['AP']:.3f} | {lo:.3f}-{hi:.3f} | "
-              f"{r['objects']} | "
-              f"{r['largest_group']} | {r['layers']} | {r['scenes']}")
+        print(f"{r['method']} | {r['dataset']} | {r['arrangement']} | {r['class']} | {r['AP']:.3f} | "
+              f"{lo:.3f}-{hi:.3f} | {r['objects']} | {r['largest_group']} | {r['layers']} | {r['scenes']}")
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1) + "\n")
 

@@ -363,8 +363,8 @@ def support_neighbours(targets: list, supporters: list, n_points: int, rmse_max:
         return
 
     def inlier_matrix(hs):
-        rows = np.concatenate([np.full(int(h.inl.sum()), i) for i, h in enumerate(hs)] + [np.zeros(0, int)])
-        cols = np.concatenate([h.cand[h.inl] for h in hs] + [np.zeros(0, np.int64)])
+        rows = np.concatenate([np.full(int(h.inl.sum()), i) for i, h in enumerate(hs)])
+        cols = np.concatenate([h.cand[h.inl] for h in hs])
         return sparse.csr_matrix((np.ones(len(rows), np.float32), (rows, cols)), shape=(len(hs), n_points))
 
     it, isup = inlier_matrix(targets), inlier_matrix(sup)
@@ -372,15 +372,15 @@ def support_neighbours(targets: list, supporters: list, n_points: int, rmse_max:
     n_t = np.asarray(it.sum(1)).ravel()
     n_s = np.asarray(isup.sum(1)).ravel()
     ok = shared <= frac * np.minimum(n_t[:, None], n_s[None, :])
-    ok &= np.array([[t is not s for s in sup] for t in targets])
+    col_of = {id(s): j for j, s in enumerate(sup)}
+    for i, t in enumerate(targets):  # a hypothesis does not support itself
+        if id(t) in col_of:
+            ok[i, col_of[id(t)]] = False
     covered = (sparse.csr_matrix(ok.astype(np.float32)) @ isup).tocsr()  # (targets, points) > 0: excused
     for i, h in enumerate(targets):
-        if len(h.cand) == 0:
-            continue
-        row = covered.getrow(i)
-        excused = np.zeros(n_points, bool)
-        excused[row.indices[row.data > 0]] = True
-        h.cand_free = h.inl | ~excused[h.cand]
+        if len(h.cand):
+            row = slice(covered.indptr[i], covered.indptr[i + 1])
+            h.cand_free = h.inl | ~np.isin(h.cand, covered.indices[row][covered.data[row] > 0])
 
 
 def shape_tolerance_m(model, params: dict) -> float:
