@@ -198,6 +198,7 @@ def test_upright_coverage_per_view_counts_equal_the_loop_over_views(objects, tem
     from scipy.spatial import cKDTree
 
     from sonardet.detect.model_based.models import build_class_model, rot_z
+    from sonardet.detect.model_based.near import NearGrid
     from sonardet.detect.model_based.params import DEFAULTS
     from sonardet.detect.model_based.scoring import (
         CoverageViews,
@@ -225,5 +226,5 @@ def test_upright_coverage_per_view_counts_equal_the_loop_over_views(objects, tem
         asked = _asked(allv, occluders, p) & ~_excused(allv, hit, shadow)
         want = max((hit[a:b] & asked[a:b]).sum() / max(asked[a:b].sum(), p["coverage_asked_min_frac"] * (b - a), 1.0)
                    for a, b in zip(tv.bounds[:-1], tv.bounds[1:]))
-        got = _coverage_upright(tv, R, t, ltree, occluders, p, 0.0, shadow)
+        got = _coverage_upright(tv, R, t, NearGrid(scene, p["coverage_m"]), occluders, p, 0.0, shadow)
         assert got == want and 0.0 < got <= 1.0, (k, got, want)

@@ -120,9 +120,14 @@ class ClassModel:
 
     def cast_down(self, xy_canonical_top: np.ndarray, direction: np.ndarray) -> np.ndarray:
         """Cast rays from points (K,3) along one direction (3,), canonical frame; hit distance (K,), inf on a miss."""
-        rays = np.empty((len(xy_canonical_top), 6), dtype=np.float32)
-        rays[:, :3] = xy_canonical_top
-        rays[:, 3:] = direction
+        return self.cast(xy_canonical_top, direction)
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Cast rays from origins (K,3) along directions (K,3) or one direction (3,) (unit vectors),
+        canonical frame, in one call; hit distance (K,) in m, inf on a miss."""
+        rays = np.empty((len(origins), 6), dtype=np.float32)
+        rays[:, :3] = origins
+        rays[:, 3:] = directions
         return self.raycaster.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
 
     def top_height_map(self, cell_m: float, yaw_rad: float = 0.0, half_size_m: float | None = None):

@@ -641,17 +641,26 @@ def _acceptable(st, h, classes, accepted, p, rmse_max):
     return ok, new_ok, replace
 
 
+def _inliers_lost(h, gone) -> float:
+    """Share of h's inliers that a newly accepted object took (`gone`); 0 without inliers."""
+    inl = h.cand[h.inl]
+    return float(gone[inl].mean()) if len(inl) else 0.0
+
+
 def _update_pending(st, classes, pending, accepted, gone, changed, p, stats, rmse_max):
     """Pending hypotheses that shared points a newly accepted object explained (`changed`): refitted on
     what is left when they lost more than `refit_lost_min_frac` of their candidates to it (`gone`; at
-    most `refits_max_n` times each), else re-scored."""
+    most `refits_max_n` times each) unless more than `refit_inliers_lost_max_frac` of their inliers, else
+    re-scored. A hypothesis that lost that much of its inliers was another explanation of the object
+    just accepted, not of a neighbour: what is left of its crop is proposed again in the next round."""
     for j, o in enumerate(pending):
         if len(o.cand) == 0:
             continue
         if not changed[o.cand].any():
             continue
         lost = gone[o.cand].mean()
-        if lost > p["refit_lost_min_frac"] and o.n_refits < p["refits_max_n"]:
+        if lost > p["refit_lost_min_frac"] and o.n_refits < p["refits_max_n"] \
+                and _inliers_lost(o, gone) <= p["refit_inliers_lost_max_frac"]:
             k = classes[o.cls]
             crop = _crop(st, o.t[:2], k.model.radius_m + p["crop_margin_m"])
             ref = _fit(st, k, o.R, o.t, crop, p, stats, _occluders(accepted, k.model, o.t[:2], p), kind="refit") \

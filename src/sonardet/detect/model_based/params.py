@@ -126,6 +126,7 @@ DEFAULTS: dict = {
     "replace_owner_min_frac": 0.2,
     "refit_lost_min_frac": 0.1,
     "refits_max_n": 2,
+    "refit_inliers_lost_max_frac": 0.3,
     # Duplicates (of the non-accepted hypotheses kept for recall).
     "duplicate_dist_m": 0.5,
 }
@@ -345,6 +346,9 @@ DESCRIPTIONS: dict = {
     "refit_lost_min_frac": ("-", "a pending hypothesis that lost more than this share of its candidate points to "
                                  "a newly accepted object is refitted on the rest (else re-scored)"),
     "refits_max_n": ("-", "most refits of one hypothesis"),
+    "refit_inliers_lost_max_frac": ("-", "no refit (re-scored instead) when the newly accepted object took more than "
+                                         "this share of the hypothesis' inliers (it explained the same object; 1: "
+                                         "refit always)"),
     "window_scale": ("-", "window side = class footprint (largest horizontal extent) x this"),
     "window_overlap": ("-", "overlap of adjacent windows (0..1)"),
     "window_min_points_frac": ("-",

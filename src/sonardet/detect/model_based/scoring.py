@@ -45,6 +45,7 @@ from scipy.spatial import cKDTree
 
 from ...geometry import matrix_to_quat, points_in_box
 from ...objects.catalog import canonical_box
+from .near import NearGrid
 
 
 @dataclass(eq=False)
@@ -157,15 +158,22 @@ def virtual_views(model, R: np.ndarray, t: np.ndarray, cell_m: float, directions
     r = 0.5 * float(np.linalg.norm(v.max(0) - v.min(0))) + cell_m
     g = np.arange(-r, r + 1e-9, cell_m)
     gu, gv = np.meshgrid(g, g)
-    out = []
+    origins = []
     for d in directions:
         u = np.cross(d, [0.0, 1.0, 0.0] if abs(d[1]) < 0.9 else [1.0, 0.0, 0.0])
         u /= np.linalg.norm(u)
         w = np.cross(d, u)
-        o = c - 2.0 * r * d + gu.reshape(-1, 1) * u + gv.reshape(-1, 1) * w
-        dist = model.cast_down((o - t) @ R, R.T @ d)
-        hit = np.isfinite(dist)
-        out.append(o[hit] + dist[hit, None] * d)
+        origins.append(c - 2.0 * r * d + gu.reshape(-1, 1) * u + gv.reshape(-1, 1) * w)
+    n = gu.size
+    # One cast for every view (the rays are independent): the per-call cost of the ray caster is paid once.
+    dirs = np.repeat(np.asarray(directions, dtype=np.float64), n, axis=0)
+    o_all = np.concatenate(origins) if origins else np.zeros((0, 3))
+    dist = model.cast((o_all - t) @ R, dirs @ R)
+    out = []
+    for k, o in enumerate(origins):
+        dk = dist[k * n:(k + 1) * n]
+        hit = np.isfinite(dk)
+        out.append(o[hit] + dk[hit, None] * directions[k])
     return out
 
 
@@ -250,17 +258,15 @@ def _offset_along_normals(model, pts_canonical: np.ndarray, offset_m: float) -> 
     return pts_canonical + offset_m * model.surface_normals[i]
 
 
-def _coverage_upright(views: CoverageViews, R, t, ltree: cKDTree, occluders, params: dict,
+def _coverage_upright(views: CoverageViews, R, t, near: NearGrid, occluders, params: dict,
                       offset_m: float = 0.0, shadow: ShadowMap | None = None) -> float:
     """f_t of an upright pose: best over the thinned template views (canonical, moved by the shape offset
     `offset_m` along their normals, posed by R, t) of the share of asked points with a scene point
     within coverage_m (points under accepted occluders or, unhit, in the shadow map's shadow are not
     asked)."""
-    cov = params["coverage_m"]
     pts = views.points + offset_m * views.normals if offset_m else views.points
     allv = pts @ R.T + t
-    dd, _ = ltree.query(allv, k=1, distance_upper_bound=cov)
-    hit = np.isfinite(dd)
+    hit = near.any_within(allv)
     asked = _asked(allv, occluders, params) & ~_excused(allv, hit, shadow)
     bounds = np.asarray(views.bounds, dtype=np.int64)
     if len(bounds) < 2:
@@ -274,11 +280,10 @@ def _coverage_upright(views: CoverageViews, R, t, ltree: cKDTree, occluders, par
     return float(np.max((n_hit[b] - n_hit[a]) / den))
 
 
-def _coverage_virtual(model, R, t, ltree: cKDTree, occluders, params: dict, offset_m: float = 0.0,
+def _coverage_virtual(model, R, t, near: NearGrid, occluders, params: dict, offset_m: float = 0.0,
                       shadow: ShadowMap | None = None) -> float:
     """f_t of a tumbled pose: best over the virtual views of the posed mesh (see `virtual_views`), moved by
     the shape offset `offset_m` along their normals."""
-    cov = params["coverage_m"]
     floor = params["coverage_asked_min_frac"]
     dirs = view_directions(params["virtual_view_incidences_deg"], int(params["virtual_view_azimuths_n"]))
     best = 0.0
@@ -287,8 +292,7 @@ def _coverage_virtual(model, R, t, ltree: cKDTree, occluders, params: dict, offs
             continue
         if offset_m:
             pv = _offset_along_normals(model, (pv - t) @ R, offset_m) @ R.T + t
-        dd, _ = ltree.query(pv, k=1, distance_upper_bound=cov)
-        hit = np.isfinite(dd)
+        hit = near.any_within(pv)
         asked = _asked(pv, occluders, params) & ~_excused(pv, hit, shadow)
         best = max(best, float((hit & asked).sum() / max(asked.sum(), floor * len(pv), 1.0)))
     return best
@@ -448,12 +452,12 @@ def score_hypothesis(model, views: CoverageViews, R, t, scene: SceneIndex, param
         around = scene.all_xyz[np.sort(np.asarray(local, dtype=np.int64))]
         local_pts = around[np.abs(around[:, 2] - box[2]) <= 0.5 * box[5] + params["coverage_z_band_m"]]
         if len(local_pts) > 0:
-            ltree = cKDTree(local_pts)
+            grid = NearGrid(local_pts, params["coverage_m"])
             shadow = ShadowMap(around, params["shadow_cell_m"], params["shadow_margin_m"]) \
                 if params["shadow_margin_m"] > 0 else None
-            h.f_t = (_coverage_upright(views, R, t, ltree, occluders, params, h.shape_offset_m, shadow)
+            h.f_t = (_coverage_upright(views, R, t, grid, occluders, params, h.shape_offset_m, shadow)
                      if h.upright else
-                     _coverage_virtual(model, R, t, ltree, occluders, params, h.shape_offset_m, shadow))
+                     _coverage_virtual(model, R, t, grid, occluders, params, h.shape_offset_m, shadow))
     rescore(h, scene.active, rmse_max_m, params)
     return h
 

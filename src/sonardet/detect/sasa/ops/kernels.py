@@ -31,18 +31,10 @@ and cached on disk (``cache=True``); FPS and the ball query run one thread per c
 from __future__ import annotations
 
 import math
-import os
 
-import numba
 import numpy as np
 
-# Numba's default threading layer here is GNU OpenMP, whose threads do not survive a fork: a process
-# that ran a parallel kernel could then not fork tile workers (`sonardet detect --jobs`). The
-# workqueue layer is fork-safe and enough for the parallel kernels here (batch norm, segment max, FPS and
-# ball query over the clouds of a batch), which the model calls from one thread. A layer chosen with
-# NUMBA_THREADING_LAYER wins.
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "workqueue"
+from ....jit import numba  # the fork-safe threading layer (see sonardet.jit)
 
 __all__ = ["FPS_BLOCK", "fps_kernel", "ball_query_kernel", "grid_cell", "weighted_bn_relu_forward",
            "weighted_bn_relu_backward", "segment_max_forward", "segment_max_backward", "parallel_chunks"]

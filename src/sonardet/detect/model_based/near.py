@@ -1,0 +1,93 @@
+"""Fixed-radius "is any scene point near" tests for the coverage score (sonardet.detect.model_based.scoring).
+
+The coverage term asks, for every point of every template view of a hypothesis (thousands per
+hypothesis, hundreds of hypotheses per scene), whether a scene point lies within `coverage_m` of it. A
+k-d tree answers that with a nearest-neighbour search per point (SciPy's ``cKDTree.query`` with a
+distance bound) and has to be built for each hypothesis' neighbourhood first. A uniform grid of
+columns of side `radius_m`, each sorted by height, answers the same question exactly by looking at
+the 3 x 3 columns around the query, only at their points within the radius in z (binary search),
+and stopping at the first point closer than the radius: no library offers this
+any-within-radius test as one compiled call, so it is written here (Numba, compiled once and cached
+on disk).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...jit import numba
+
+__all__ = ["NearGrid"]
+
+
+@numba.njit(cache=True, nogil=True)
+def _any_within(q, pts, start, lo_x, lo_y, cell, nx, ny, r, r2):
+    """Boolean (K,): some point of `pts` (sorted by column, then z; column c holding
+    pts[start[c]:start[c+1]]) lies at a squared distance below r2 (= r^2) of q[k]."""
+    out = np.zeros(q.shape[0], dtype=np.bool_)
+    for k in range(q.shape[0]):
+        fx = (q[k, 0] - lo_x) / cell
+        fy = (q[k, 1] - lo_y) / cell
+        if fx < -1.0 or fy < -1.0 or fx >= nx + 1.0 or fy >= ny + 1.0:
+            continue  # more than one column off the grid: no point within the radius
+        cx = int(np.floor(fx))
+        cy = int(np.floor(fy))
+        zlo = q[k, 2] - r
+        zhi = q[k, 2] + r
+        found = False
+        for ix in range(max(cx - 1, 0), min(cx + 2, nx)):
+            for iy in range(max(cy - 1, 0), min(cy + 2, ny)):
+                c = ix * ny + iy
+                # The column is sorted by z: start at the first point above qz - r (binary search).
+                a, b = start[c], start[c + 1]
+                while a < b:
+                    mid = (a + b) // 2
+                    if pts[mid, 2] <= zlo:
+                        a = mid + 1
+                    else:
+                        b = mid
+                for m in range(a, start[c + 1]):
+                    if pts[m, 2] >= zhi:
+                        break
+                    dx = pts[m, 0] - q[k, 0]
+                    dy = pts[m, 1] - q[k, 1]
+                    dz = pts[m, 2] - q[k, 2]
+                    if dx * dx + dy * dy + dz * dz < r2:
+                        found = True
+                        break
+                if found:
+                    break
+            if found:
+                break
+        out[k] = found
+    return out
+
+
+class NearGrid:
+    """Points (N,3, m) in xy columns of side `radius_m`, for :meth:`any_within` tests at that radius."""
+
+    def __init__(self, pts: np.ndarray, radius_m: float):
+        pts = np.ascontiguousarray(pts, dtype=np.float64)
+        if not radius_m > 0:
+            raise ValueError(f"NearGrid radius must be positive, got {radius_m}")
+        self.radius_m = float(radius_m)
+        if len(pts) == 0:
+            self.lo = np.zeros(2)
+            self.nx = self.ny = 0
+            self.pts, self.start = pts.reshape(0, 3), np.zeros(1, dtype=np.int64)
+            return
+        self.lo = pts[:, :2].min(0)
+        ij = np.floor((pts[:, :2] - self.lo) / self.radius_m).astype(np.int64)
+        self.nx, self.ny = (int(v) for v in ij.max(0) + 1)
+        col = ij[:, 0] * self.ny + ij[:, 1]
+        order = np.lexsort((pts[:, 2], col))
+        self.pts = pts[order]
+        self.start = np.concatenate([[0], np.cumsum(np.bincount(col, minlength=self.nx * self.ny))]).astype(np.int64)
+
+    def any_within(self, q: np.ndarray) -> np.ndarray:
+        """Boolean (K,): query points q (K,3, m) with a grid point closer than the radius (strictly)."""
+        q = np.ascontiguousarray(q, dtype=np.float64).reshape(-1, 3)
+        if self.nx == 0 or len(q) == 0:
+            return np.zeros(len(q), dtype=bool)
+        return _any_within(q, self.pts, self.start, float(self.lo[0]), float(self.lo[1]), self.radius_m,
+                           self.nx, self.ny, self.radius_m, self.radius_m * self.radius_m)

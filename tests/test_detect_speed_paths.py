@@ -1,0 +1,128 @@
+"""The faster paths of the `ours` detector give what the slower ones gave: the coverage test's column
+grid against SciPy's k-d tree, the one-call virtual views against one cast per view, and the refit
+gate (no refit of a hypothesis whose inliers the accepted object took)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+import sonardet.detect.model_based.ours as ours
+from sonardet.config import validate_config
+from sonardet.detect.model_based import DEFAULTS
+from sonardet.detect.model_based.models import build_class_model
+from sonardet.detect.model_based.near import NearGrid
+from sonardet.detect.model_based.scoring import Hypothesis, view_directions, virtual_views
+from sonardet.objects import build_object, object_info
+from sonardet.sim.mbes import SensorConfig
+from sonardet.sim.templates import scan_templates
+
+
+def _kdtree_hits(pts, q, r):
+    if len(pts) == 0:
+        return np.zeros(len(q), dtype=bool)
+    d, _ = cKDTree(pts).query(q, k=1, distance_upper_bound=r)
+    return np.isfinite(d)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_near_grid_matches_the_kdtree(seed):
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform([-1, -1, -0.5], [2, 1.5, 1.0], size=(2000, 3))
+    pts[:200] = pts[0] + rng.normal(0, 0.01, (200, 3))  # a dense clump: long columns
+    q = rng.uniform([-1.5, -1.5, -1.0], [2.5, 2.0, 1.5], size=(20000, 3))  # some off the grid
+    for r in (0.03, 0.08, 0.2):
+        got = NearGrid(pts, r).any_within(q)
+        want = _kdtree_hits(pts, q, r)
+        assert want.any() and (~want).any()
+        np.testing.assert_array_equal(got, want)
+
+
+def test_near_grid_edge_cases():
+    q = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.49]])
+    g = NearGrid(np.zeros((1, 3)), 0.5)
+    np.testing.assert_array_equal(g.any_within(q), [True, False, True])  # strictly closer, as the k-d tree
+    assert not NearGrid(np.zeros((0, 3)), 0.1).any_within(q).any()
+    assert NearGrid(np.zeros((1, 3)), 0.1).any_within(np.zeros((0, 3))).shape == (0,)
+    with pytest.raises(ValueError, match="radius"):
+        NearGrid(np.zeros((1, 3)), 0.0)
+
+
+@pytest.fixture(scope="module")
+def model():
+    cfg = validate_config({})
+    obj = object_info(build_object("tetrapod_s", cfg["objects"]), cfg["objects"]["density_kg_m3"])
+    tv = scan_templates("tetrapod_s", obj.mesh.vertices, obj.mesh.faces, obj.symmetry_order,
+                        {"yaw_deg": [0], "directions": ["x"], "offsets_m": [0.0], "altitude_m": 11.5},
+                        SensorConfig.from_dict(cfg["sensor"]), np.random.default_rng(0))
+    return build_class_model(tv, obj, DEFAULTS["surface_spacing_m"])
+
+
+def test_virtual_views_in_one_cast_equal_one_cast_per_view(model):
+    """The views of a tilted pose, cast in one call, hit the same surface points as the casts of one
+    view at a time (the rays of every view as `virtual_views` builds them)."""
+    a, b = np.deg2rad(35.0), np.deg2rad(20.0)
+    R = np.array([[np.cos(b), -np.sin(b), 0], [np.sin(b), np.cos(b), 0], [0, 0, 1]]) @ \
+        np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    t = np.array([3.0, -2.0, -11.0])
+    dirs = view_directions([0.0, 30.0, 50.0], 4)
+    cell = 0.1
+    got = virtual_views(model, R, t, cell, dirs)
+    v = model.vertices @ R.T + t
+    c = 0.5 * (v.min(0) + v.max(0))
+    r = 0.5 * float(np.linalg.norm(v.max(0) - v.min(0))) + cell
+    g = np.arange(-r, r + 1e-9, cell)
+    gu, gv = np.meshgrid(g, g)
+    assert len(got) == len(dirs)
+    for d, pv in zip(dirs, got):
+        u = np.cross(d, [0.0, 1.0, 0.0] if abs(d[1]) < 0.9 else [1.0, 0.0, 0.0])
+        u /= np.linalg.norm(u)
+        w = np.cross(d, u)
+        o = c - 2.0 * r * d + gu.reshape(-1, 1) * u + gv.reshape(-1, 1) * w
+        dist = model.cast_down((o - t) @ R, R.T @ d)
+        hit = np.isfinite(dist)
+        assert hit.sum() > 50
+        np.testing.assert_allclose(pv, o[hit] + dist[hit, None] * d, atol=1e-6)
+
+
+def test_refit_gate_spares_hypotheses_whose_inliers_were_taken(monkeypatch):
+    """Of two pending hypotheses that lost 40 % of their candidates, the one that lost its inliers
+    (another explanation of the object just accepted) is re-scored, the one that lost other points
+    (a neighbour's leg) is refitted; with the gate at 1 both are refitted."""
+    n = 100
+    pts = np.c_[np.linspace(0, 1, n), np.zeros(n), np.full(n, 0.5)]
+
+    class St:
+        pass
+
+    st = St()
+    st.pts, st.active = pts, np.ones(n, dtype=bool)
+    st.tree_xy = cKDTree(pts[:, :2])
+    cand = np.arange(50)
+    inl = np.zeros(50, dtype=bool)
+    inl[:20] = True  # inliers: points 0-19
+
+    def hyp():
+        return Hypothesis(cls="tetrapod_s", R=np.eye(3), t=np.array([0.2, 0.0, 0.0]), box=np.zeros(7),
+                          f_t=0.9, rmse_m=0.01, cand=cand.copy(), inl=inl.copy())
+
+    calls = []
+    monkeypatch.setattr(ours, "_fit", lambda st_, k, R0, t0, crop, p, stats, occ=(), kind="refit": calls.append(1))
+
+    class K:
+        class model:
+            radius_m = 1.0
+
+    p = dict(DEFAULTS)
+    for gate, want in ((DEFAULTS["refit_inliers_lost_max_frac"], 1), (1.0, 2)):
+        calls.clear()
+        took_inliers, took_others = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        took_inliers[:20] = True  # all of the first hypothesis' inliers
+        took_others[30:50] = True  # candidates, no inliers
+        for gone in (took_inliers, took_others):
+            h = hyp()
+            ours._update_pending(st, {"tetrapod_s": K}, [h], [], gone, gone.copy(),
+                                 dict(p, refit_inliers_lost_max_frac=gate), {"refits": 0},
+                                 {"tetrapod_s": 0.05})
+        assert len(calls) == want
