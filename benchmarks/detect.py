@@ -87,6 +87,7 @@ def main():
             dets[sid] = d
             rows.append({"scene": sid, "n_points": st["n_points"], "seconds": st["seconds"], "windows": st["windows"],
                          "windows_skipped": st["windows_skipped"], "icp_runs": st["icp_runs"],
+                         "icp_runs_by_kind": dict(st.get("icp_runs_by_kind", {})),
                          "hypotheses": st["hypotheses"], "n_detections": len(d)})
             s = st["seconds"]
             print(f"[{variant}] {sid}: {s['total']:6.2f} s (ground {s['ground']:.2f}, proposals {s['proposals']:.2f}, "
@@ -104,6 +105,12 @@ def main():
             print(f"[{variant}] mAP@0.5 m = {ev['mAP@0.5']:.4f}; AP@0.5 m per class: "
                   + ", ".join(f"{c} {ev['AP@0.5'][c]:.4f} ({ev['n_tp@0.5'][c]}/{ev['n_gt'][c]} TP, "
                               f"{ev['n_pred'][c]} predictions)" for c in classes))
+        kinds = sorted({k for r in rows for k in r["icp_runs_by_kind"]})
+        summary["icp_runs_by_kind_mean"] = {k: float(np.mean([r["icp_runs_by_kind"].get(k, 0) for r in rows]))
+                                            for k in kinds}
+        if kinds:
+            print(f"[{variant}] ICP runs per scene by kind: "
+                  + ", ".join(f"{k} {v:.0f}" for k, v in summary["icp_runs_by_kind_mean"].items()))
         print(f"[{variant}] {summary['seconds_per_scene_mean']:.2f} s per scene "
               f"(max {summary['seconds_per_scene_max']:.2f}); "
               f"{summary['windows_mean']:.0f} windows, {summary['windows_skipped_mean']:.0f} skipped, "
