@@ -93,14 +93,29 @@ def _scene_paths(n: int, synthetic: bool, tmp: Path) -> list[Path]:
     return _synthetic_scenes(n, tmp)
 
 
+def _profile_step(step, dev, rows: int) -> str:
+    """The ``rows`` operators of one training step with the most self time (device time on CUDA)."""
+    import torch
+    from torch.profiler import ProfilerActivity, profile
+
+    acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if dev.type == "cuda" else [])
+    with profile(activities=acts) as prof:
+        step(0)
+    key = "self_cuda_time_total" if dev.type == "cuda" else "self_cpu_time_total"
+    return prof.key_averages().table(sort_by=key, row_limit=rows)
+
+
 def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: int, threads: int, device: str | None,
-            train_scenes: int, q) -> None:
+            train_scenes: int, fps_loop: bool, profile_rows: int, q) -> None:
     import torch
 
     from sonardet.detect.sasa import DEFAULTS, STUDY, SASADetector, TrainedSASA, resolve_params
     from sonardet.detect.sasa.data import prepare_scene
+    from sonardet.detect.sasa.ops import gpu_kernels, sampling
     from sonardet.detect.sasa.trainer import _make_batch, peak_memory_mb, resolve_device
 
+    if fps_loop:  # FPS on the PyTorch loop on every device (no compiled CPU kernel, no Triton kernel)
+        sampling.kernels, gpu_kernels.AVAILABLE = None, False
     torch.set_num_threads(threads)
     base = {"DEFAULTS": DEFAULTS, "STUDY": STUDY}[name]
     params = resolve_params(overrides, base=base)
@@ -117,20 +132,24 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
         if dev.type == "cuda":
             torch.cuda.synchronize(dev)
 
-    times = []
-    for i in range(warmup + steps):
+    def step(i: int) -> None:
         sel = [scenes[(i * bs + j) % len(scenes)] for j in range(bs)]
-        sync()
-        t = time.perf_counter()
         batch = _make_batch(sel, params, np.random.default_rng(i), dev, True)
         loss, _ = model.loss(model(batch), batch)
         opt.zero_grad()
         loss.backward()
         opt.step()
+
+    times = []
+    for i in range(warmup + steps):
+        sync()
+        t = time.perf_counter()
+        step(i)
         sync()
         if i >= warmup:
             times.append(time.perf_counter() - t)
     step_s = float(np.median(times))
+    profile = _profile_step(step, dev, profile_rows) if profile_rows else None
     inf = []
     trained = TrainedSASA(model, params, dev)
     for i, s in enumerate(scenes):
@@ -148,8 +167,16 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
         "train_s_per_scene": step_s / bs, "infer_s_per_scene": float(np.median(inf)),
         "epoch_s_est": step_s * steps_per_epoch, "train_scenes": train_scenes, "epochs": int(params["epochs"]),
         "schedule_s_est": step_s * steps_per_epoch * int(params["epochs"]),
+        "fps": "torch loop" if fps_loop else "default", "profile": profile,
+        "gpu": torch.cuda.get_device_name(dev) if dev.type == "cuda" else None,
         **peak_memory_mb(dev),
     })
+
+
+def _torch_version() -> str:
+    import torch
+
+    return torch.__version__
 
 
 def _devices(device: str | None) -> list[str]:
@@ -172,6 +199,10 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--device", default=None, help="cpu or cuda (default: cpu, and cuda too if available)")
     ap.add_argument("--padded", action="store_true", help="grouped MLPs on the padded slots (compact_groups false)")
     ap.add_argument("--synthetic", action="store_true", help="use synthetic scenes even if results/ has some")
+    ap.add_argument("--fps-loop", action="store_true",
+                    help="FPS on the PyTorch loop (not the compiled CPU kernel or the Triton CUDA kernel)")
+    ap.add_argument("--profile", type=int, default=0, metavar="ROWS",
+                    help="profile one more training step and print its ROWS most expensive operators")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     rows = []
@@ -183,14 +214,21 @@ def main(argv=None) -> list[dict]:
             for name in args.configs.split(","):
                 q = ctx.Queue()
                 proc = ctx.Process(target=_worker, args=(name, overrides, paths, args.steps, args.warmup,
-                                                         args.threads, device, args.train_scenes, q))
+                                                         args.threads, device, args.train_scenes, args.fps_loop, args.profile,
+                                                         q))
                 proc.start()
                 row = q.get()
                 proc.join()
                 row["load_avg_1min"] = os.getloadavg()[0]
                 rows.append(row)
     cpu = platform.processor() or platform.machine()
-    print(f"machine: {platform.node()} {cpu}, torch threads {args.threads}, scenes: {len(paths)} "
+    for r in rows:
+        if r["profile"]:
+            print(f"profile of one {r['config']} step on {r['device']}:\n{r['profile']}")
+    gpus = sorted({r["gpu"] for r in rows if r["gpu"]})
+    print(f"machine: {platform.node()} {cpu}{' + ' + ', '.join(gpus) if gpus else ''}, torch {_torch_version()}, "
+          f"torch threads {args.threads}, FPS {'on the PyTorch loop' if args.fps_loop else 'default'}, "
+          f"scenes: {len(paths)} "
           f"({'synthetic' if 'syn' in Path(paths[0]).stem else 'results/scenes'}), grouped MLPs on "
           f"{'padded slots' if args.padded else 'distinct neighbours'}, load average {os.getloadavg()[0]:.1f}")
     head = ("config", "device", "batch", "points", "params", "s/step", "s/scene(train)", "s/scene(infer)",

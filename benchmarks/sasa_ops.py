@@ -2,7 +2,8 @@
 
 Runs on CPU with 2 threads (the default experiment's budget) and, when CUDA is available, on the
 GPU too. On CPU, FPS / S-FPS and the ball query are timed on the compiled kernels (``[compiled]``, the
-default there) and on the PyTorch paths (``[torch]`` loop; ``tiled`` / ``dense`` ball query), which
+default there; on CUDA FPS runs the Triton kernel, ``[triton]``) and on the PyTorch paths
+(``[torch]`` loop; ``tiled`` / ``dense`` ball query), which
 give the same indices. Prints a table; ``--json PATH`` also writes the rows for the report.
 
 Workload: a synthetic seabed-like cloud (x, y uniform over 40 m x 40 m, z a gentle surface with
@@ -14,7 +15,8 @@ against PyTorch), and rotated NMS / IoU on 500 boxes clustered around 25 objects
 Peak memory of the ball query is measured in a fresh subprocess (ru_maxrss growth) so earlier
 allocations do not hide it.
 
-Usage: ``python benchmarks/sasa_ops.py [--quick | --rows-only] [--repeat 3] [--threads 2] [--json out.json]``
+Usage: ``python benchmarks/sasa_ops.py [--quick | --rows-only | --cuda-only] [--repeat 3] [--threads 2]
+[--json out.json]``
 """
 
 from __future__ import annotations
@@ -46,16 +48,24 @@ NSAMPLES = [16, 16, 32]
 
 @contextmanager
 def fps_path(path: str):
-    """FPS on the compiled kernel (``"compiled"``) or on the PyTorch loop (``"torch"``)."""
-    from sonardet.detect.sasa.ops import sampling
+    """FPS on the compiled CPU kernel (``"compiled"``) or the Triton kernel on CUDA (``"triton"``), the
+    default of their device, or on the PyTorch loop (``"torch"``: both switched off)."""
+    from sonardet.detect.sasa.ops import gpu_kernels, sampling
 
-    saved = sampling.kernels
+    saved = sampling.kernels, gpu_kernels.AVAILABLE
     if path == "torch":
-        sampling.kernels = None
+        sampling.kernels, gpu_kernels.AVAILABLE = None, False
     try:
         yield
     finally:
-        sampling.kernels = saved
+        sampling.kernels, gpu_kernels.AVAILABLE = saved
+
+
+def gpu_available() -> bool:
+    """Whether the Triton FPS kernel can run (Triton imported)."""
+    from sonardet.detect.sasa.ops import gpu_kernels
+
+    return gpu_kernels.AVAILABLE
 
 
 def seabed_cloud(batch: int, n: int, seed: int = 0) -> torch.Tensor:
@@ -201,7 +211,7 @@ def run(device: torch.device, batches: list[int], repeat: int, rows: list[dict])
         xyz0 = seabed_cloud(batch, 16384).to(device)
         chain = [(16384, 4096), (4096, 1024), (1024, 512)]
         xyz = xyz0
-        paths = ["compiled", "torch"] if device.type == "cpu" else ["torch"]
+        paths = ["compiled", "torch"] if device.type == "cpu" else (["triton", "torch"] if gpu_available() else ["torch"])
         for n, m in chain:
             xyz = xyz[:, :n].contiguous()
             logits = torch.randn(batch, n, device=device)
@@ -257,6 +267,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="batch 2 only, 1 repeat, no memory probe")
     ap.add_argument("--no-cuda", action="store_true")
+    ap.add_argument("--cuda-only", action="store_true", help="only the CUDA rows (on a machine with a GPU)")
     ap.add_argument("--rows-only", action="store_true",
                     help="only the grouped MLP's row kernels (weighted batch norm, segment max), CPU, --repeat times")
     ap.add_argument("--json", default=None, help="write the rows to this JSON file")
@@ -271,6 +282,8 @@ def main() -> None:
         add = row_adder(torch.device("cpu"), rows)
         weighted_bn_rows(add, args.repeat)
         segment_max_rows(add, args.repeat)
+        batches = []
+    elif args.cuda_only:
         batches = []
     else:
         run(torch.device("cpu"), batches, repeat, rows)

@@ -15,9 +15,11 @@ functions replicate the CUDA kernels of the SASA reference (blakechen97/SASA,
 
 On CPU, with finite coordinates and weights in float32/float64, the compiled block algorithm of
 :mod:`.kernels` does the sampling (same indices, same float arithmetic; it skips the blocks of points
-that the last pick cannot reach). Otherwise (CUDA, non-finite values, Numba missing) the PyTorch loop
-below runs on the device of the input: one Python step per sampled point, vectorised over batch and
-points (O(npoint * B * N) work, O(B * N) memory). Both give the same indices (tested).
+that the last pick cannot reach). On CUDA, under the same conditions and for clouds of at most
+:data:`.gpu_kernels.MAX_POINTS` points, the Triton kernel of :mod:`.gpu_kernels` does it (one program
+per cloud, the cloud held in registers; same indices). Otherwise (non-finite values, Numba or Triton
+missing, larger clouds on CUDA) the PyTorch loop below runs on the device of the input: one Python step per sampled point, vectorised over batch and
+points (O(npoint * B * N) work, O(B * N) memory). All three give the same indices (tested; the Triton kernel on a GPU).
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ from functools import lru_cache
 
 import numpy as np
 import torch
+
+from . import gpu_kernels
 
 try:  # the compiled CPU kernels are optional: without Numba the PyTorch loop runs everywhere
     from . import kernels
@@ -107,6 +111,8 @@ def _fps_loop(xyz: torch.Tensor, npoint: int, weights: torch.Tensor | None) -> t
     n_iter = min(npoint, N)
     if _compiled_ok(xp, wp):
         picked = _fps_compiled(xp, wp, n_iter)
+    elif gpu_kernels.usable(xp, wp):
+        picked = _fps_gpu(xp, wp, n_iter)
     else:
         picked = _fps_torch(xp, wp, n_iter)
     idx = order[picked]  # back to original indices
@@ -134,6 +140,14 @@ def _fps_compiled(xp: torch.Tensor, wp: torch.Tensor | None, n_iter: int) -> tor
         out = kernels.fps_kernel(x, wp.contiguous().numpy(), wp.clamp_min(_WEIGHT_MIN).contiguous().numpy(),
                                  n_iter, True)
     return torch.from_numpy(out)
+
+
+def _fps_gpu(xp: torch.Tensor, wp: torch.Tensor | None, n_iter: int) -> torch.Tensor:
+    """Preference positions (B, n_iter) picked by the Triton kernel (:func:`.gpu_kernels.fps_triton`)."""
+    if wp is None:  # reference: the first pick is index 0, position 0 of the permuted cloud
+        return gpu_kernels.fps_triton(xp, None, torch.zeros(xp.shape[0], dtype=torch.long, device=xp.device), n_iter)
+    # The first pick and the score factor exactly as the PyTorch loop computes them.
+    return gpu_kernels.fps_triton(xp, wp.clamp_min(_WEIGHT_MIN), wp.argmax(dim=1), n_iter)
 
 
 def _fps_torch(xp: torch.Tensor, wp: torch.Tensor | None, n_iter: int) -> torch.Tensor:
