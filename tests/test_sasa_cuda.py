@@ -74,6 +74,17 @@ def test_fps_on_cuda_equals_cpu(gpu_fps, dtype):
                        weighted_furthest_point_sample(xyz, w, 700))
 
 
+def test_fps_ties_on_a_grid_on_cuda_equal_cpu(gpu_fps):
+    """Integer grid points with duplicates: many equal distances, so the tie rule decides most picks."""
+    g = torch.Generator().manual_seed(12)
+    xyz = torch.randint(0, 6, (3, 2000, 3), generator=g).to(torch.float32)
+    w = torch.randint(1, 4, (3, 2000), generator=g).to(torch.float32) / 3
+    for m in (50, 216, 400):
+        assert torch.equal(furthest_point_sample(xyz.to(CUDA), m).cpu(), furthest_point_sample(xyz, m)), m
+        assert torch.equal(weighted_furthest_point_sample(xyz.to(CUDA), w.to(CUDA), m).cpu(),
+                           weighted_furthest_point_sample(xyz, w, m)), m
+
+
 def test_fps_study_sizes_on_cuda_equal_cpu(gpu_fps):
     """The study preset's chain (batch 8: 16384 -> 4096 -> 1024 -> 512) picks what the CPU picks."""
     xyz = sonar_cloud(8, 16384, 3)

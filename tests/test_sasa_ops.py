@@ -584,3 +584,38 @@ def test_nms_matches_reference_greedy_random():
     for thr in (0.01, 0.1, 0.5):
         got = nms_bev_rotated(torch.from_numpy(boxes), torch.from_numpy(scores), thr).tolist()
         assert got == ref_nms(boxes, scores, thr)
+
+
+_TRITON_INTERPRETED_FPS = r"""
+import os, sys
+os.environ["TRITON_INTERPRET"] = "1"
+import torch
+from sonardet.detect.sasa.ops import gpu_kernels, sampling
+assert gpu_kernels.AVAILABLE
+g = torch.Generator().manual_seed(3)
+for dtype in (torch.float32, torch.float64):
+    for B, N, m, weighted in [(2, 300, 64, False), (2, 300, 300, True), (1, 1, 1, False), (1, 17, 5, True)]:
+        xyz = torch.rand(B, N, 3, generator=g, dtype=dtype) * 10 + 300.0
+        if N > 30:  # a third of the points on an integer grid (equal distances: ties) with duplicates
+            xyz[:, : N // 3] = torch.randint(0, 4, (B, N // 3, 3), generator=g).to(dtype)
+            xyz[:, 10:30] = xyz[:, 10:11]
+        xp = xyz.index_select(1, sampling._preference_order(N, xyz.device))
+        wp = torch.rand(B, N, generator=g, dtype=dtype) if weighted else None
+        if weighted:
+            wp[:, :4] = 0.0  # below the clamp
+        assert torch.equal(sampling._fps_gpu(xp, wp, m), sampling._fps_torch(xp, wp, m)), (dtype, B, N, m, weighted)
+print("ok")
+"""
+
+
+def test_triton_fps_kernel_in_the_interpreter():
+    """The CUDA FPS kernel (Triton) run by Triton's CPU interpreter picks what the PyTorch loop picks.
+    Needs Triton (PyTorch's CUDA builds bring it; skipped with the CPU build). The interpreter breaks
+    every argmax tie to the left whatever the kernel asks, so the tie rule and the arithmetic on the
+    hardware are tested on a GPU (tests/test_sasa_cuda.py)."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("triton")
+    done = subprocess.run([sys.executable, "-c", _TRITON_INTERPRETED_FPS], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-3000:]
