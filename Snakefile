@@ -25,3 +25,13 @@ rule all:
         final_outputs(),
         SURVEY_OUTPUTS,
         "results/report/timeline.json",
+
+
+# The Snakemake process's own CPU time (scheduling, input functions, file checks) beside its jobs':
+# results/benchmarks/snakemake_process.json, read by benchmarks/workflow.py.
+onsuccess:
+    record_process_usage("success")
+
+
+onerror:
+    record_process_usage("error")

@@ -1,6 +1,8 @@
 """The time line of a finished workflow run, from its benchmark files (sonardet.report.timeline):
 wall time, total job time, CPU time, idle core-time, the blocking chain (the jobs that set the end
-time) and the seconds per rule; optionally a Gantt figure.
+time) and the seconds per rule; optionally a Gantt figure. Where the run finished (or failed) with
+this DAG's Snakefile, also the Snakemake process's own CPU time against its jobs'
+(``results/benchmarks/snakemake_process.json``, written by its onsuccess / onerror handlers).
 
 With ``--dag`` (run from the workflow folder with the run's config) it also asks Snakemake for the
 job graph (a dry run with --forceall) and reports the dependency critical path: the chain of jobs,
@@ -22,7 +24,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from sonardet.report.timeline import critical_path, plot_gantt, read_benchmarks, run_summary  # noqa: E402
+from sonardet.report.timeline import (  # noqa: E402
+    critical_path,
+    plot_gantt,
+    read_benchmarks,
+    read_process_usage,
+    run_summary,
+)
 
 
 def job_graph(configfile: str | None) -> dict:
@@ -66,6 +74,12 @@ def main() -> int:
     print(f"{s['jobs']} jobs on {args.cores} cores: wall {s['wall_s'] / 60:.1f} min, job time "
           f"{s['job_s'] / 60:.1f} min, CPU {s['cpu_s'] / 60:.1f} min, idle core-time {s['idle_core_s'] / 60:.1f} min "
           f"({100 * s['utilisation']:.0f} % busy)")
+    proc = read_process_usage(Path(args.results) / "benchmarks")
+    if proc is not None:
+        s["snakemake_process"] = proc
+        print(f"Snakemake process ({proc['outcome']}): own CPU {proc['own_cpu_s'] / 60:.1f} min over its "
+              f"{proc['wall_s'] / 60:.1f} min ({100 * proc['own_core_share']:.0f} % of one core), its jobs' CPU "
+              f"{proc['children_cpu_s'] / 60:.1f} min, peak RSS {proc['own_max_rss_mb']:.0f} MB")
     print(f"blocking chain ({s['chain_s'] / 60:.1f} min of jobs):")
     for c in s["chain"]:
         print(f"  {c['start_s'] / 60:6.1f} min  {c['seconds']:7.1f} s  {c['job']}")

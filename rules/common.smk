@@ -26,6 +26,25 @@ from sonardet.survey import enabled_surveys, tile_ids
 from sonardet.seeds import derive_seed
 from sonardet.sim.dataset import make_splits, scene_ids, split_names
 
+
+def record_process_usage(outcome):
+    """Write this (the Snakemake) process's own CPU time, its finished jobs' CPU time and its wall time
+    (sonardet.report.timeline.process_usage) with the run's outcome ("success" or "error") to
+    results/benchmarks/snakemake_process.json (called by the Snakefile's onsuccess / onerror).
+    """
+    import json
+
+    from sonardet.io.atomic import atomic_write_text
+    from sonardet.report.timeline import PROCESS_FILE, process_usage
+
+    os.makedirs("results/benchmarks", exist_ok=True)
+    doc = {"outcome": outcome, "cores": workflow.cores, **process_usage()}
+    atomic_write_text(
+        os.path.join("results/benchmarks", PROCESS_FILE),
+        json.dumps(doc, indent=1) + "\n",
+    )
+
+
 # Fixed thread counts and instruction-set paths of the numerical libraries for every job (inherited
 # from this process): the same bytes on another machine of the same kind (README, Reproducibility).
 determinism.apply()

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import REAL_FILE
+from conftest import REAL_FILE, REPO
 from sonardet.io.templates import read_templates
 from sonardet.objects import read_object
 
@@ -221,6 +221,18 @@ def test_report_tables_and_figures(smoke_run):
         assert image_is_informative(smoke_run / "results/noise/noise.png")
         noise = json.loads((smoke_run / "results/noise/noise.json").read_text())
         assert 0.003 < noise["real"][0]["after"]["std_m"] < 0.015
+
+
+def test_snakemake_process_usage_is_recorded(smoke_run):
+    """The run records its Snakemake process's own CPU time beside its jobs' (onsuccess handler), and
+    benchmarks/workflow.py reports it."""
+    doc = json.loads((smoke_run / "results/benchmarks/snakemake_process.json").read_text())
+    assert doc["outcome"] == "success" and doc["cores"] == 2
+    assert doc["wall_s"] > 0 and doc["own_cpu_s"] > 0 and doc["children_cpu_s"] > doc["own_cpu_s"]
+    assert 0 < doc["own_core_share"] < 2 and doc["own_max_rss_mb"] > 0
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks/workflow.py"), "--results",
+                           str(smoke_run / "results")], capture_output=True, text=True, check=True)
+    assert "Snakemake process (success): own CPU" in proc.stdout, proc.stdout
 
 
 def test_toy_method_from_a_plugin(smoke_run):

@@ -22,7 +22,12 @@ from matplotlib import colormaps
 
 from .style import new_figure, write_figure
 
-__all__ = ["blocking_chain", "critical_path", "plot_gantt", "read_benchmarks", "run_summary"]
+__all__ = ["PROCESS_FILE", "blocking_chain", "critical_path", "plot_gantt", "process_usage", "read_benchmarks",
+           "read_process_usage", "run_summary"]
+
+#: Where the workflow records its Snakemake process's own usage (under the benchmark folder), written
+#: by the Snakefile's onsuccess / onerror handlers.
+PROCESS_FILE = "snakemake_process.json"
 
 
 def read_benchmarks(root) -> pd.DataFrame:
@@ -47,6 +52,37 @@ def read_benchmarks(root) -> pd.DataFrame:
                      "cpu_s": float(cpu), "max_rss_mb": float(rss)})
     df = pd.DataFrame(rows, columns=["rule", "job", "start", "end", "seconds", "cpu_s", "max_rss_mb"])
     return df.sort_values(["start", "job"]).reset_index(drop=True)
+
+
+def process_usage() -> dict:
+    """This process's own CPU seconds (user + system; for the Snakemake process: scheduling, the DAG,
+    input functions, file checks, `run:` blocks) and the CPU seconds of its finished children (the
+    jobs, each a subprocess), its wall seconds since it started, and the share of one core its own
+    CPU is of that wall time. Read with :mod:`resource` and psutil (a Snakemake dependency)."""
+    import resource
+    import time
+
+    import psutil
+
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    wall = time.time() - psutil.Process().create_time()
+    own_cpu = own.ru_utime + own.ru_stime
+    return {"own_cpu_s": own_cpu, "children_cpu_s": kids.ru_utime + kids.ru_stime, "wall_s": wall,
+            "own_core_share": own_cpu / wall if wall > 0 else math.nan, "own_max_rss_mb": own.ru_maxrss / 1024.0}
+
+
+def read_process_usage(root) -> dict | None:
+    """The Snakemake process's usage that the last run wrote into the benchmark folder ``root``, or None."""
+    import json
+
+    path = Path(root) / PROCESS_FILE
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except ValueError as exc:
+        raise ValueError(f"{path}: not the workflow's process record ({exc}); delete it and rerun") from None
 
 
 def blocking_chain(df: pd.DataFrame, slack_s: float = 2.0) -> pd.DataFrame:
