@@ -37,8 +37,9 @@ __all__ = ["AVAILABLE", "MAX_POINTS", "fps_triton", "usable"]
 
 #: Whether Triton could be imported.
 AVAILABLE = triton is not None
-#: Largest cloud one program holds in registers (the study preset's 16384 input points fit).
-MAX_POINTS = 1 << 15
+#: Largest cloud one program holds in registers: the study preset's 16384 input points, the largest
+#: size tested on a GPU (larger clouds take the PyTorch loop).
+MAX_POINTS = 1 << 14
 
 
 if AVAILABLE:
@@ -80,10 +81,10 @@ if AVAILABLE:
 
 def usable(xp: torch.Tensor, wp: torch.Tensor | None) -> bool:
     """Whether :func:`fps_triton` applies: Triton present, a CUDA tensor of float32/float64, at most
-    ``MAX_POINTS`` points, finite coordinates and weights."""
+    ``MAX_POINTS`` points (at least one cloud of at least one point), finite coordinates and weights."""
     if not AVAILABLE or xp.device.type != "cuda" or xp.dtype not in (torch.float32, torch.float64):
         return False
-    if xp.shape[1] > MAX_POINTS:
+    if xp.shape[0] == 0 or not 1 <= xp.shape[1] <= MAX_POINTS:
         return False
     return bool(torch.isfinite(xp).all()) and (wp is None or bool(torch.isfinite(wp).all()))
 
