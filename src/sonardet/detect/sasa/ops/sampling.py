@@ -30,8 +30,6 @@ from functools import lru_cache
 import numpy as np
 import torch
 
-from . import gpu_kernels
-
 try:  # the compiled CPU kernels are optional: without Numba the PyTorch loop runs everywhere
     from . import kernels
 except ImportError:  # pragma: no cover - Numba is a dependency
@@ -111,7 +109,7 @@ def _fps_loop(xyz: torch.Tensor, npoint: int, weights: torch.Tensor | None) -> t
     n_iter = min(npoint, N)
     if _compiled_ok(xp, wp):
         picked = _fps_compiled(xp, wp, n_iter)
-    elif gpu_kernels.usable(xp, wp):
+    elif xp.device.type == "cuda" and _gpu_kernels().usable(xp, wp):
         picked = _fps_gpu(xp, wp, n_iter)
     else:
         picked = _fps_torch(xp, wp, n_iter)
@@ -142,12 +140,20 @@ def _fps_compiled(xp: torch.Tensor, wp: torch.Tensor | None, n_iter: int) -> tor
     return torch.from_numpy(out)
 
 
+def _gpu_kernels():
+    """The Triton kernels' module, imported on the first CUDA input (it imports Triton)."""
+    from . import gpu_kernels
+
+    return gpu_kernels
+
+
 def _fps_gpu(xp: torch.Tensor, wp: torch.Tensor | None, n_iter: int) -> torch.Tensor:
     """Preference positions (B, n_iter) picked by the Triton kernel (:func:`.gpu_kernels.fps_triton`)."""
+    fps_triton = _gpu_kernels().fps_triton
     if wp is None:  # reference: the first pick is index 0, position 0 of the permuted cloud
-        return gpu_kernels.fps_triton(xp, None, torch.zeros(xp.shape[0], dtype=torch.long, device=xp.device), n_iter)
+        return fps_triton(xp, None, torch.zeros(xp.shape[0], dtype=torch.long, device=xp.device), n_iter)
     # The first pick and the score factor exactly as the PyTorch loop computes them.
-    return gpu_kernels.fps_triton(xp, wp.clamp_min(_WEIGHT_MIN), wp.argmax(dim=1), n_iter)
+    return fps_triton(xp, wp.clamp_min(_WEIGHT_MIN), wp.argmax(dim=1), n_iter)
 
 
 def _fps_torch(xp: torch.Tensor, wp: torch.Tensor | None, n_iter: int) -> torch.Tensor:
