@@ -146,7 +146,9 @@ def group_rows(idx: torch.Tensor, cnt: torch.Tensor, n_points: int) -> GroupRows
     base = (torch.arange(B, device=idx.device) * n_points).view(B, 1, 1)
     lengths = n.reshape(-1)
     centre = torch.repeat_interleave(torch.arange(B * M, device=idx.device), lengths)
-    return GroupRows((idx + base)[keep], centre, mult[keep], lengths, B * M * K)
+    sel = keep.reshape(-1).nonzero().squeeze(1)  # the kept slots in row-major order, found once
+    point = (idx + base).reshape(-1).index_select(0, sel)
+    return GroupRows(point, centre, mult.reshape(-1).index_select(0, sel), lengths, B * M * K)
 
 
 class _WeightedBatchNormReLU(torch.autograd.Function):
