@@ -1,15 +1,22 @@
-"""The NCC proposal maps reuse each raster's and kernel's spectrum (proposals._Correlator): their
-outputs must equal, to the bit, the masked NCC computed with one fftconvolve per pair (`_corr`)."""
+"""The NCC proposal maps and the vote maps reuse each raster's and kernel's spectrum
+(proposals._Correlator): their outputs must equal, to the bit, the same maps computed with one scipy
+fftconvolve per pair (`_corr`)."""
 
 import numpy as np
+from scipy.signal import fftconvolve
 
 from sonardet.detect.model_based.proposals import (
     Kernel,
     Raster,
-    _corr,
     ncc_maps,
     ncc_rasters,
+    vote_map,
 )
+
+
+def _corr(a: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Correlation of raster a with kernel k ('same' size, float32) by scipy's fftconvolve."""
+    return fftconvolve(a.astype(np.float32, copy=False), k[::-1, ::-1].astype(np.float32), mode="same")
 
 
 def _reference(r, kernels, occupied_min_m, min_data_frac):
@@ -60,3 +67,22 @@ def test_ncc_maps_equal_the_per_pair_fftconvolve_to_the_bit():
             r2 = Raster(h2, 0.0, 0.0, 0.1)
             for g, w in zip(ncc_maps(r2, kernels, 0.15, 0.5), _reference(r2, kernels, 0.15, 0.5)):
                 assert np.array_equal(g, w)
+
+
+def test_vote_maps_equal_the_per_pair_fftconvolve_to_the_bit():
+    rng = np.random.default_rng(4)
+    h = rng.uniform(-0.1, 2.0, (131, 177))
+    h[rng.random(h.shape) < 0.2] = np.nan
+    r = Raster(h, 0.0, 0.0, 0.1)
+    for size, n in ((29, 4), (41, 2)):
+        kernels = _kernels(rng, size, n)
+        best, arg = vote_map(r, kernels, 0.15)
+        occ = (np.nan_to_num(h, nan=0.0) > 0.15).astype(np.float64)
+        want_best, want_arg = np.full(h.shape, -1.0), np.zeros(h.shape, dtype=np.int64)
+        for k, ker in enumerate(kernels):
+            fp = (ker.height > 0.15).astype(np.float64)
+            v = _corr(occ, fp) / max(fp.sum(), 1.0)
+            better = v > want_best
+            want_best[better], want_arg[better] = v[better], k
+        assert np.array_equal(best, want_best) and np.array_equal(arg, want_arg)
+        assert len(set(arg.ravel())) > 1  # the kernels compete: a check that can fail
