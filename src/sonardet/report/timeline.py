@@ -58,7 +58,8 @@ def process_usage() -> dict:
     """This process's own CPU seconds (user + system; for the Snakemake process: scheduling, the DAG,
     input functions, file checks, `run:` blocks) and the CPU seconds of its finished children (the
     jobs, each a subprocess), its wall seconds since it started, and the share of one core its own
-    CPU is of that wall time. Read with :mod:`resource` and psutil (a Snakemake dependency)."""
+    CPU is of that wall time. Read with :mod:`resource` and psutil (a Snakemake dependency). On a
+    cluster profile the jobs run elsewhere: the children are then the local jobs only."""
     import resource
     import time
 

@@ -12,7 +12,9 @@ running distance in registers for all the picks. Each pick computes
 no fused multiply-add, exactly the PyTorch loop's and the CPU kernel's arithmetic), takes the running
 minimum, multiplies by the clamped weight when weighted, and picks the first maximum
 (``tie_break_left``), i.e. the same index as the PyTorch loop's ``argmax``. Padding slots hold a
-running distance of -1 and never win.
+running distance of -1 and never win. The number of picks is a compile-time constant (Triton's
+interpreter, which the CPU-only tests use, cannot loop to a run-time bound): a model's few sampling
+sizes compile once each, and Triton caches the builds on disk.
 
 Triton is optional: it comes with PyTorch's CUDA builds and is absent from the CPU build, so this
 module imports without it (:data:`AVAILABLE` is then False) and the callers keep the PyTorch loop.
@@ -105,6 +107,6 @@ def fps_triton(xp: torch.Tensor, w_clamped: torch.Tensor | None, first: torch.Te
     out = torch.empty((B, n_iter), dtype=torch.long, device=xp.device)
     block = max(16, 1 << math.ceil(math.log2(N)))
     warps = min(32, max(4, block // 512))  # 16-32 points of each array per thread
-    _fps_kernel[(B,)](x, y, z, w, first.to(torch.int32).contiguous(), out, N,
-                      N_ITER=n_iter, WEIGHTED=w_clamped is not None, BLOCK=block, num_warps=warps, enable_fp_fusion=False)
+    _fps_kernel[(B,)](x, y, z, w, first.to(torch.int32).contiguous(), out, N, N_ITER=n_iter,
+                      WEIGHTED=w_clamped is not None, BLOCK=block, num_warps=warps, enable_fp_fusion=False)
     return out

@@ -18,8 +18,9 @@ On CPU, with finite coordinates and weights in float32/float64, the compiled blo
 that the last pick cannot reach). On CUDA, under the same conditions and for clouds of at most
 :data:`.gpu_kernels.MAX_POINTS` points, the Triton kernel of :mod:`.gpu_kernels` does it (one program
 per cloud, the cloud held in registers; same indices). Otherwise (non-finite values, Numba or Triton
-missing, larger clouds on CUDA) the PyTorch loop below runs on the device of the input: one Python step per sampled point, vectorised over batch and
-points (O(npoint * B * N) work, O(B * N) memory). All three give the same indices (tested; the Triton kernel on a GPU).
+missing, larger clouds on CUDA) the PyTorch loop below runs on the device of the input: one Python
+step per sampled point, vectorised over batch and points (O(npoint * B * N) work, O(B * N) memory).
+All three give the same indices (tested; the Triton kernel on a GPU).
 """
 
 from __future__ import annotations
