@@ -8,7 +8,7 @@ the detector module its family loads (``EXTRA``). It prints the mean wall and CP
 with ``--dag`` it also counts the jobs of each rule in the configured workflow's whole DAG
 (``snakemake -n --forceall``, run from the repository root) and gives the start-up CPU of a full run.
 
-Usage: ``python benchmarks/job_startup.py [--repeat 5] [--scripts detect_scene,evaluate] [--dag
+Usage: ``python benchmarks/job_startup.py [--repeat 5] [--scripts detect_scenes,evaluate] [--dag
 [--configfile c.yaml]] [--json out.json]``. Seconds depend on the machine and its load.
 """
 
@@ -29,7 +29,7 @@ SCRIPTS = REPO / "workflow_scripts"
 
 #: What a job of these scripts imports lazily before its work: the detector of its method family.
 EXTRA = {
-    "detect_scene": ["from sonardet.detect.model_based import ModelBasedDetector"],
+    "detect_scenes": ["from sonardet.detect.model_based import ModelBasedDetector"],
     "ablation_point": ["from sonardet.detect.model_based import ModelBasedDetector"],
     "detect_survey_tile": ["from sonardet.detect.model_based import ModelBasedDetector"],
     "detect_dataset": ["from sonardet.detect.sasa import TrainedSASA"],
@@ -38,7 +38,8 @@ EXTRA = {
 
 #: Which script each rule runs, for rules not named after their script (rules/*.smk).
 RULE_SCRIPT = [(r"^simulate_scene_hybrid$", "simulate_hybrid_scene"), (r"^simulate_scene_", "simulate_scene"),
-               (r"^detect_dataset_", "detect_dataset"), (r"^train_", "train")]
+               (r"^detect_dataset_", "detect_dataset"), (r"^detect_scenes_", "detect_scenes"),
+               (r"^train_", "train")]
 
 
 def script_imports(name: str) -> list[str]:

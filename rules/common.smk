@@ -393,14 +393,6 @@ def final_outputs():
 # Rule inputs and parameters.
 
 
-def detect_scene_inputs(wildcards):
-    """The scene's soundings and the method's resources (objects, templates, model)."""
-    return {
-        "npz": dataset_scene_file(wildcards.dataset, wildcards.scene, "npz"),
-        **method_resources(wildcards.method),
-    }
-
-
 def train_inputs(method):
     """A trained method's training-fraction scenes and the dev scenes (its checkpoint choice)."""
     fraction = METHOD[method].fraction

@@ -1,32 +1,48 @@
-# Detection with every registered method (sonardet.methods): one job per scene for per-scene methods
-# (model-based), one job per dataset for per-dataset ones (SASA: the model is loaded once), and one
-# training job per trained method.
+# Detection with every registered method (sonardet.methods): one job per dataset (per-scene methods,
+# model-based: statistics per scene; per-dataset ones, SASA: a timing file; either way the detector is
+# built or the model loaded once), and one training job per trained method.
 
 
-rule detect_scene:
-    input:
-        unpack(detect_scene_inputs),
-    output:
-        detections="results/detections/{method}/{dataset}/{scene}.json",
-        stats="results/stats/{method}/{dataset}/{scene}.json",
-    log:
-        "results/logs/detect_scene/{method}/{dataset}/{scene}.log",
-    benchmark:
-        "results/benchmarks/detect_scene/{method}/{dataset}/{scene}.tsv"
-    wildcard_constraints:
-        method=PER_SCENE_RE,
-    priority: PRIORITY["detect"]
-    conda:
-        "../environment.yml"
-    threads: lambda w: METHOD[w.method].threads
-    resources:
-        mem_mb=MEM_MB["detect"],
-        runtime=RUNTIME_MIN["detect"],
-    params:
-        method=lambda w: METHOD[w.method].to_dict(),
-        classes=CLASSES,
-    script:
-        "../workflow_scripts/detect_scene.py"
+# One rule per evaluation dataset for the per-scene methods too: a job runs the method on every scene
+# of the dataset (the detector built once, the job's start-up paid once: benchmarks/job_startup.py)
+# and writes each scene's detections and statistics.
+for _dataset in DATASETS:
+
+    rule:
+        name:
+            f"detect_scenes_{_dataset}"
+        input:
+            unpack(
+                lambda w, d=_dataset: {
+                    "scenes": dataset_scene_files(d, "npz"),
+                    **method_resources(w.method),
+                }
+            ),
+        output:
+            detections=[
+                detection_file("{method}", _dataset, s) for s in DATASETS[_dataset]
+            ],
+            stats=[
+                scene_stats_file("{method}", _dataset, s) for s in DATASETS[_dataset]
+            ],
+        log:
+            f"results/logs/detect_scenes/{{method}}/{_dataset}.log",
+        benchmark:
+            f"results/benchmarks/detect_scenes/{{method}}/{_dataset}.tsv"
+        wildcard_constraints:
+            method=PER_SCENE_RE,
+        priority: PRIORITY["detect"]
+        conda:
+            "../environment.yml"
+        threads: lambda w: METHOD[w.method].threads
+        resources:
+            mem_mb=MEM_MB["detect"],
+            runtime=RUNTIME_MIN["detect"],
+        params:
+            method=lambda w: METHOD[w.method].to_dict(),
+            classes=CLASSES,
+        script:
+            "../workflow_scripts/detect_scenes.py"
 
 
 # One rule per evaluation dataset: its outputs are every scene of the dataset.

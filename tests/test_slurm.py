@@ -95,7 +95,7 @@ def test_every_job_ran_through_slurm_with_its_resources(slurm_run):
     total = int(re.findall(r"(\d+) of (\d+) steps \(100%\) done", slurm_run["log"])[-1][1])
     assert len(jobs) == total - 1  # every job but the target rule `all`, which runs in Snakemake itself
     rules = {j["rule"] for j in jobs.values()}
-    assert {"object_mesh", "detect_scene", "report"} <= rules
+    assert {"object_mesh", "detect_scenes_synthetic", "report"} <= rules
     assert all(any(r.startswith(p) for r in rules) for p in ("simulate_scene_", "detect_dataset_", "train_"))
     sacct = slurm_run["sacct"]
     for slurm_id, job in jobs.items():

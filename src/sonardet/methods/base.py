@@ -22,8 +22,9 @@ import numpy as np
 
 from ..io.scenes import read_scene_points
 
-#: How a method's detections are produced in the workflow: one job per scene (each writes a stats
-#: file with the scene's seconds) or one job per dataset (the model is loaded once; one timing file).
+#: How a method's time is recorded in the workflow: a stats file per scene with the scene's seconds
+#: (`per_scene`) or one timing file per dataset (`per_dataset`). Either way the workflow runs a
+#: method on a dataset's scenes in one job (the detector built or the model loaded once).
 RUNNERS = ("per_scene", "per_dataset")
 #: Inputs a method can need: the classes' object models, their template scans, a trained model file.
 RESOURCE_KINDS = ("objects", "templates", "model")
