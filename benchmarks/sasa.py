@@ -168,15 +168,9 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
         "epoch_s_est": step_s * steps_per_epoch, "train_scenes": train_scenes, "epochs": int(params["epochs"]),
         "schedule_s_est": step_s * steps_per_epoch * int(params["epochs"]),
         "fps": "torch loop" if fps_loop else "default", "profile": profile,
-        "gpu": torch.cuda.get_device_name(dev) if dev.type == "cuda" else None,
+        "gpu": torch.cuda.get_device_name(dev) if dev.type == "cuda" else None, "torch": torch.__version__,
         **peak_memory_mb(dev),
     })
-
-
-def _torch_version() -> str:
-    import torch
-
-    return torch.__version__
 
 
 def _devices(device: str | None) -> list[str]:
@@ -214,8 +208,8 @@ def main(argv=None) -> list[dict]:
             for name in args.configs.split(","):
                 q = ctx.Queue()
                 proc = ctx.Process(target=_worker, args=(name, overrides, paths, args.steps, args.warmup,
-                                                         args.threads, device, args.train_scenes, args.fps_loop, args.profile,
-                                                         q))
+                                                         args.threads, device, args.train_scenes, args.fps_loop,
+                                                         args.profile, q))
                 proc.start()
                 row = q.get()
                 proc.join()
@@ -226,7 +220,7 @@ def main(argv=None) -> list[dict]:
         if r["profile"]:
             print(f"profile of one {r['config']} step on {r['device']}:\n{r['profile']}")
     gpus = sorted({r["gpu"] for r in rows if r["gpu"]})
-    print(f"machine: {platform.node()} {cpu}{' + ' + ', '.join(gpus) if gpus else ''}, torch {_torch_version()}, "
+    print(f"machine: {platform.node()} {cpu}{' + ' + ', '.join(gpus) if gpus else ''}, torch {rows[0]['torch']}, "
           f"torch threads {args.threads}, FPS {'on the PyTorch loop' if args.fps_loop else 'default'}, "
           f"scenes: {len(paths)} "
           f"({'synthetic' if 'syn' in Path(paths[0]).stem else 'results/scenes'}), grouped MLPs on "

@@ -211,7 +211,10 @@ def run(device: torch.device, batches: list[int], repeat: int, rows: list[dict])
         xyz0 = seabed_cloud(batch, 16384).to(device)
         chain = [(16384, 4096), (4096, 1024), (1024, 512)]
         xyz = xyz0
-        paths = ["compiled", "torch"] if device.type == "cpu" else (["triton", "torch"] if gpu_available() else ["torch"])
+        if device.type == "cpu":
+            paths = ["compiled", "torch"]
+        else:
+            paths = ["triton", "torch"] if gpu_available() else ["torch"]
         for n, m in chain:
             xyz = xyz[:, :n].contiguous()
             logits = torch.randn(batch, n, device=device)

@@ -284,6 +284,15 @@ def eval_files(methods=None):
     ] + [f"results/eval/compare/{d}.json" for d in EVAL_DATASETS]
 
 
+def dataset_detect_inputs(dataset):
+    """Input function of a dataset's detection job: every scene of the dataset and the method's
+    resources (both detection rules, per-scene and per-dataset methods, use it)."""
+    return lambda w: {
+        "scenes": dataset_scene_files(dataset, "npz"),
+        **method_resources(w.method),
+    }
+
+
 def method_resources(method):
     """Named inputs a method runs with: object models, template scans, its trained model."""
     kinds = METHOD[method].resources if method in METHOD else ()

@@ -12,12 +12,7 @@ for _dataset in DATASETS:
         name:
             f"detect_scenes_{_dataset}"
         input:
-            unpack(
-                lambda w, d=_dataset: {
-                    "scenes": dataset_scene_files(d, "npz"),
-                    **method_resources(w.method),
-                }
-            ),
+            unpack(dataset_detect_inputs(_dataset)),
         output:
             detections=[
                 detection_file("{method}", _dataset, s) for s in DATASETS[_dataset]
@@ -52,12 +47,7 @@ for _dataset in DATASETS:
         name:
             f"detect_dataset_{_dataset}"
         input:
-            unpack(
-                lambda w, d=_dataset: {
-                    "scenes": dataset_scene_files(d, "npz"),
-                    **method_resources(w.method),
-                }
-            ),
+            unpack(dataset_detect_inputs(_dataset)),
         output:
             detections=[
                 detection_file("{method}", _dataset, s) for s in DATASETS[_dataset]

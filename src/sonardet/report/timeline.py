@@ -13,7 +13,10 @@ core). Its total is the run's wall time minus the gaps in the chain.
 
 from __future__ import annotations
 
+import json
 import math
+import resource
+import time
 from pathlib import Path
 
 import numpy as np
@@ -60,10 +63,7 @@ def process_usage() -> dict:
     jobs, each a subprocess), its wall seconds since it started, and the share of one core its own
     CPU is of that wall time. Read with :mod:`resource` and psutil (a Snakemake dependency). On a
     cluster profile the jobs run elsewhere: the children are then the local jobs only."""
-    import resource
-    import time
-
-    import psutil
+    import psutil  # imported here: only the workflow's end handlers need it
 
     own = resource.getrusage(resource.RUSAGE_SELF)
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -75,8 +75,6 @@ def process_usage() -> dict:
 
 def read_process_usage(root) -> dict | None:
     """The Snakemake process's usage that the last run wrote into the benchmark folder ``root``, or None."""
-    import json
-
     path = Path(root) / PROCESS_FILE
     if not path.is_file():
         return None
