@@ -83,13 +83,16 @@ def accepted(dets):
     return [d for d in dets if d["extras"]["accepted"]]
 
 
-@pytest.mark.parametrize("variant", ["ours", "paper"])
+@pytest.mark.parametrize("variant,params", [("ours", {}), ("ours", {"icp_grid_cell_m": 0}), ("paper", {})],
+                         ids=["ours", "ours-open3d-icp", "paper"])
 @pytest.mark.parametrize("cls,yaw", [("reef_cone", 0.3), ("tetrapod_s", 0.7), ("reef_ring", 0.0), ("tetrapod_b", 1.9)])
-def test_object_alone_on_flat_seabed_is_found(objects, templates, sensor, variant, cls, yaw):
+def test_object_alone_on_flat_seabed_is_found(objects, templates, sensor, variant, params, cls, yaw):
+    """Each class alone, by each variant; `ours` with its ICP on the nearest-sample grids (default) and
+    with Open3D's ICP (`icp_grid_cell_m` 0)."""
     obj = objects[cls]
     t, q = place(obj, 7.0, 6.5, yaw)
     xyz = survey([(obj, t, q)], sensor)
-    dets, stats = detect(xyz, templates, objects, variant=variant)
+    dets, stats = detect(xyz, templates, objects, params, variant=variant)
     assert dets, f"{variant}: nothing found"
     best = dets[0]
     truth = canonical_box(obj.mesh.vertices, t, q, obj.symmetry_order)

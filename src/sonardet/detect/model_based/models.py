@@ -23,6 +23,10 @@ from scipy.spatial import cKDTree
 
 from ...objects.meshes import SYMMETRY_CONTINUOUS
 
+#: A point whose nearest surface sample is closer than this many sample spacings is measured along
+#: that sample's normal (point-to-plane), a farther one to the sample itself (`ClassModel.distance`).
+NEAR_SPACINGS = 1.5
+
 
 @dataclass
 class ClassModel:
@@ -88,7 +92,7 @@ class ClassModel:
         p = np.asarray(pts_canonical, dtype=np.float64)
         dn, i = self.surface_tree.query(p, k=1)
         dot = np.einsum("ij,ij->i", p - self.surface[i], self.surface_normals[i])
-        mag = np.where(dn < 1.5 * self.surface_spacing_m, np.abs(dot), dn)
+        mag = np.where(dn < NEAR_SPACINGS * self.surface_spacing_m, np.abs(dot), dn)
         return np.where(dot < 0.0, -mag, mag)
 
     def within(self, pts_canonical: np.ndarray, dist_m: float) -> np.ndarray:
@@ -101,14 +105,14 @@ class ClassModel:
         if len(pts_canonical) == 0:
             return np.zeros(0, dtype=bool)
         p = np.asarray(pts_canonical, dtype=np.float64)
-        bound = max(float(dist_m), 1.5 * self.surface_spacing_m)
+        bound = max(float(dist_m), NEAR_SPACINGS * self.surface_spacing_m)
         dn, i = self.surface_tree.query(p, k=1, distance_upper_bound=np.nextafter(bound, np.inf))
         hit = np.isfinite(dn)
         out = np.zeros(len(p), dtype=bool)
         if hit.any():
             ih, dh = i[hit], dn[hit]
             dot = np.einsum("ij,ij->i", p[hit] - self.surface[ih], self.surface_normals[ih])
-            out[hit] = np.where(dh < 1.5 * self.surface_spacing_m, np.abs(dot), dh) < dist_m
+            out[hit] = np.where(dh < NEAR_SPACINGS * self.surface_spacing_m, np.abs(dot), dh) < dist_m
         return out
 
     def inside(self, pts_canonical: np.ndarray) -> np.ndarray:

@@ -42,7 +42,8 @@ from scipy.spatial import cKDTree
 
 from ...geometry import points_in_box
 from .ground import seabed
-from .models import ClassModel, rot_x, rot_z
+from .grid_icp import NearestSurfaceGrid, icp_point_to_plane_starts
+from .models import NEAR_SPACINGS, ClassModel, rot_x, rot_z
 from .params import per_class
 from .proposals import (
     class_kernels,
@@ -52,7 +53,7 @@ from .proposals import (
     ncc_peaks,
     vote_map,
 )
-from .registration import SceneSource, SurfaceTarget, icp_scene_to_model
+from .registration import IcpResult, SceneSource, SurfaceTarget, icp_scene_to_model, is_rigid_transform
 from .scoring import (
     CoverageViews,
     Hypothesis,
@@ -130,7 +131,9 @@ class OursClass:
     spacings); kernels: BEV kernels of the proposals (`proposals.class_kernels`); tumbled: rotations
     of the tumbled starts (`tumbled_rotations`; empty when `tumbled_inits` is off); views: the
     template views thinned to `coverage_voxel_m` with their surface normals (`scoring.CoverageViews`;
-    the template->scene fraction of upright poses).
+    the template->scene fraction of upright poses); grid: the coarse target's nearest-sample grid for
+    the screening and coarse ICP stages and the fine surface's for the fine stages and the coarse
+    quality (`grid_icp`; None when `icp_grid_cell_m` is 0: Open3D ICP and SciPy's k-d tree then).
     """
 
     model: ClassModel
@@ -138,6 +141,7 @@ class OursClass:
     kernels: list
     tumbled: list
     views: CoverageViews
+    grids: tuple[NearestSurfaceGrid, NearestSurfaceGrid] | None = None
 
 
 def prepare_classes(models: dict[str, ClassModel], p: dict) -> dict[str, OursClass]:
@@ -149,8 +153,23 @@ def prepare_classes(models: dict[str, ClassModel], p: dict) -> dict[str, OursCla
             targets=(SurfaceTarget(m.coarse_surface, m.coarse_normals), SurfaceTarget(m.surface, m.surface_normals)),
             kernels=class_kernels(m, p["bev_cell_m"], p["bev_yaw_step_deg"]),
             tumbled=tumbled_rotations(m, p) if p["tumbled_inits"] else [],
-            views=CoverageViews.of(m, view_points(m.views, p["coverage_voxel_m"])))
+            views=CoverageViews.of(m, view_points(m.views, p["coverage_voxel_m"])),
+            grids=_surface_grids(m, p))
     return out
+
+
+def _surface_grids(m: ClassModel, p: dict):
+    """Nearest-sample grids of the coarse surface (screening and first ICP stage) and of the fine
+    surface (later stages, coarse quality), each reaching as far as the correspondence distances it
+    serves; None when `icp_grid_cell_m` is 0."""
+    cell = float(p["icp_grid_cell_m"])
+    if cell <= 0:
+        return None
+    coarse = max(float(p["icp_screen_stage"][0]), float(p["icp_stages"][0][0]))
+    fine = max([float(s[0]) for s in p["icp_stages"][1:]]
+               + [float(p["coarse_q_dist_m"]), NEAR_SPACINGS * m.surface_spacing_m])
+    return (NearestSurfaceGrid(m.coarse_surface, m.coarse_normals, cell, coarse),
+            NearestSurfaceGrid(m.surface, m.surface_normals, cell, fine))
 
 
 class _State:
@@ -213,22 +232,59 @@ class _Job:
             return False
         return self.best_q >= p["coarse_q_min"] or self.best_n >= p["coarse_n_min_frac"] * self.model.median_view_n
 
-    def quality(self, res, p) -> float:
-        """Coarse quality of an ICP result: share of the probe points within coarse_q_dist_m of the posed surface."""
-        return float(self.model.within((self.probe - res.t) @ res.R, p["coarse_q_dist_m"]).mean())
+    def _register(self, starts, stage, p, level: int = 0) -> list:
+        """One ICP stage (max correspondence m, iterations, source voxel m) of the crop from each start
+        (R0, t0) onto the coarse (level 0) or fine (1) surface: IcpResult or None (declined) per start.
+        All starts in one compiled call on the class's nearest-sample grid (`grid_icp`) when it has
+        one, else one Open3D call per start."""
+        if self.k.grids is None:
+            return [icp_scene_to_model(self.src, self.target[level], R0, t0, [stage], p["icp_tukey_k_frac"],
+                                       p["icp_min_points_n"]) for R0, t0 in starts]
+        if not starts:
+            return []
+        max_corr, n_iter, voxel = stage
+        src = self.src.points_at(voxel)
+        T0 = np.zeros((len(starts), 4, 4))
+        for i, (R0, t0) in enumerate(starts):  # scene -> canonical is the inverse pose
+            T0[i, :3, :3] = R0.T
+            T0[i, :3, 3] = -R0.T @ t0
+            T0[i, 3, 3] = 1.0
+        exact = level > 0 or bool(p["icp_grid_exact_coarse"])
+        T, fit, rmse, n_corr = icp_point_to_plane_starts(src, T0, self.k.grids[level], max_corr,
+                                                         p["icp_tukey_k_frac"] * max_corr, n_iter, exact=exact)
+        out = []
+        for i in range(len(starts)):
+            if n_corr[i] < p["icp_min_points_n"] or not is_rigid_transform(T[i]):
+                out.append(None)
+                continue
+            R = T[i, :3, :3].T.copy()
+            out.append(IcpResult(R, -R @ T[i, :3, 3], float(fit[i]), float(rmse[i])))
+        return out
+
+    def qualities(self, results, p) -> np.ndarray:
+        """Coarse quality of each ICP result (-1 for None): the share of the probe points (thinned crop)
+        within coarse_q_dist_m of the posed surface, for all results in one nearest-sample query."""
+        q = np.full(len(results), -1.0)
+        ok = [i for i, r in enumerate(results) if r is not None]
+        if not ok:
+            return q
+        P = self.probe
+        moved = np.concatenate([(P - results[i].t) @ results[i].R for i in ok])
+        if self.k.grids is None:
+            inside = self.model.within(moved, p["coarse_q_dist_m"])
+        else:
+            inside = self.k.grids[1].within(moved, p["coarse_q_dist_m"], NEAR_SPACINGS * self.model.surface_spacing_m)
+        q[ok] = inside.reshape(len(ok), len(P)).mean(1)
+        return q
 
     def screen(self, starts, p, stats, keep: int) -> list:
         """The `keep` best starts (R0, t0) after the cheap `icp_screen_stage` (moved to its result)."""
         t = time.perf_counter()
-        scr = [tuple(p["icp_screen_stage"])]
-        ranked = []
-        for k, (R0, t0) in enumerate(starts):
+        for _ in starts:
             _count(stats, "screen")
-            res = icp_scene_to_model(self.src, self.target[0], R0, t0, scr, p["icp_tukey_k_frac"],
-                                     p["icp_min_points_n"])
-            if res is None:
-                continue
-            ranked.append((-self.quality(res, p), k, (res.R, res.t)))
+        results = self._register(starts, tuple(p["icp_screen_stage"]), p)
+        q = self.qualities(results, p)
+        ranked = [(-q[k], k, (r.R, r.t)) for k, r in enumerate(results) if r is not None]
         ranked.sort(key=lambda r: (r[0], r[1]))
         stats["seconds"]["registration"] += time.perf_counter() - t
         return [r[2] for r in ranked[:keep]]
@@ -243,17 +299,13 @@ class _Job:
         if screen_keep > 0 and len(starts) > screen_keep:
             starts = self.screen(starts, p, stats, screen_keep)
         t = time.perf_counter()
-        stage = [tuple(p["icp_stages"][0])]
-        for R0, t0 in starts:
+        for _ in starts:
             _count(stats, self.kind)
-            res = icp_scene_to_model(self.src, self.target[0], R0, t0, stage, p["icp_tukey_k_frac"],
-                                     p["icp_min_points_n"])
-            if res is None:
-                stats["icp_declined"] += 1
-                continue
-            q = self.quality(res, p)
-            if q > self.best_q:
-                self.best, self.best_q = res, q
+        results = self._register(starts, tuple(p["icp_stages"][0]), p)
+        stats["icp_declined"] += sum(r is None for r in results)
+        for res, q in zip(results, self.qualities(results, p)):
+            if res is not None and q > self.best_q:
+                self.best, self.best_q = res, float(q)
         stats["seconds"]["registration"] += time.perf_counter() - t
 
     def shift(self, p, stats, q_min: float | None = None):
@@ -275,9 +327,14 @@ class _Job:
         t = time.perf_counter()
         stages = [tuple(x) for x in p["icp_stages"]]
         res = self.best
-        if len(stages) > 1:
+        if len(stages) > 1 and self.k.grids is None:
             res = icp_scene_to_model(self.src, self.target[1], res.R, res.t, stages[1:], p["icp_tukey_k_frac"],
                                      p["icp_min_points_n"])
+        else:
+            for stage in stages[1:]:
+                res = self._register([(res.R, res.t)], stage, p, level=1)[0]
+                if res is None:
+                    break
         stats["seconds"]["registration"] += time.perf_counter() - t
         if res is None:
             return None

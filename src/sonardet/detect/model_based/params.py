@@ -67,6 +67,8 @@ DEFAULTS: dict = {
     "tumbled_stable_prob_min": 1e-3,
     "tumbled_tilt_round_deg": 5.0,
     "icp_screen_stage": [0.4, 6, 0.2],
+    "icp_grid_cell_m": 0.03,
+    "icp_grid_exact_coarse": False,
     # Registration.
     "crop_margin_m": 0.3,
     "icp_stages": [[0.35, 12, 0.15], [0.15, 8, 0.1]],
@@ -260,6 +262,12 @@ DESCRIPTIONS: dict = {
                                       "poses are tried once"),
     "icp_screen_stage": ("m, -, m",
                          'screening ICP of many starts: [max correspondence distance, iterations, source voxel]'),
+    "icp_grid_cell_m": ("m", "cell of the coarse surface's nearest-sample grid that runs the screening and "
+                             "coarse ICP stages of all starts of a crop in one compiled call (0: Open3D, one "
+                             "call per start)"),
+    "icp_grid_exact_coarse": ("-", "screening and coarse stages on the grid also refine each correspondence to "
+                                   "the nearest sample (as the fine stages and the coarse quality always do): "
+                                   "nearer Open3D's results, slower"),
     "crop_margin_m": ("m", "scene crop radius = class radius + this"),
     "icp_stages": ("m, -, m",
                    'coarse-to-fine ICP: [max correspondence distance, iterations, source voxel] per stage'),

@@ -165,6 +165,13 @@ class SceneSource:
             self._thin[voxel_m] = thin if len(thin.points) >= self.min_points else self._full
         return self._thin[voxel_m]
 
+    def points_at(self, voxel_m: float) -> np.ndarray:
+        """The points (K,3) of `at(voxel_m)` as a float64 array (scene frame, m)."""
+        key = ("np", voxel_m)
+        if key not in self._thin:
+            self._thin[key] = np.asarray(self.at(voxel_m).points)
+        return self._thin[key]
+
 
 def icp_scene_to_model(scene_pts, target, R0: np.ndarray, t0: np.ndarray, stages, tukey_k_factor: float = 0.5,
                        min_points: int = 10) -> IcpResult | None:
