@@ -192,6 +192,25 @@ def test_within_is_the_distance_test(objects, templates):  # noqa: F811
     assert tb.within(np.zeros((0, 3)), 0.1).shape == (0,)
 
 
+def test_bounded_signed_distance_equals_the_full_one_below_the_bound(objects, templates):  # noqa: F811
+    """`signed_distance(p, bound_m)`: the same signed values as the unbounded search wherever |d| is
+    below the bound, +inf elsewhere, at bounds below and above 1.5 sample spacings."""
+    from sonardet.detect.model_based.models import build_class_model
+
+    tb = build_class_model(templates["tetrapod_b"], objects["tetrapod_b"], 0.05)
+    rng = np.random.default_rng(6)
+    near = tb.surface[::7] + rng.normal(0.0, 0.06, (len(tb.surface[::7]), 3))
+    pts = np.concatenate([near, rng.uniform(-3.0, 3.0, (4000, 3))])
+    full = tb.signed_distance(pts)
+    for bound in (0.02, 0.06, 0.1, 0.25):
+        got = tb.signed_distance(pts, bound_m=bound)
+        below = np.abs(full) < bound
+        assert 0 < below.sum() < len(pts)
+        assert np.array_equal(got[below], full[below]), bound
+        assert np.all(np.isposinf(got[~below])), bound
+    assert np.array_equal(tb.signed_distance(pts, bound_m=np.inf), full)
+
+
 def test_upright_coverage_per_view_counts_equal_the_loop_over_views(objects, templates):  # noqa: F811
     """`_coverage_upright` (per-view counts from cumulative sums) equals the share computed view by view,
     with occluders, a shadow map and empty views among them."""

@@ -401,7 +401,9 @@ def _shape_residual(model, pts_canonical: np.ndarray, params: dict) -> tuple[np.
     tau = shape_tolerance_m(model, params)
     if tau <= 0:
         return model.distance(pts_canonical), 0.0
-    sd = model.signed_distance(pts_canonical)
+    # Only distances below tau + inlier_m matter (the points near the surface, and the inliers after
+    # the shift by at most tau): farther ones come back as +inf, which both tests reject.
+    sd = model.signed_distance(pts_canonical, bound_m=tau + params["inlier_m"])
     near = np.abs(sd) < tau + params["inlier_m"]
     offset = float(np.clip(np.median(sd[near]), -tau, tau)) if near.any() else 0.0
     return np.abs(sd - offset), offset
