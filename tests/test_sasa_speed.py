@@ -6,6 +6,7 @@ forward pass, the gradients and the running statistics."""
 from __future__ import annotations
 
 import pytest
+import numpy as np
 import torch
 from torch import nn
 
@@ -187,6 +188,30 @@ def test_fused_weighted_batch_norm_kernel_equals_torch_formulation(monkeypatch):
         out.append([y.detach(), x.grad, bn.weight.grad, bn.bias.grad, bn.running_mean, bn.running_var])
     for a, b in zip(*out):
         assert _rel(a, b) < 1e-5
+
+
+def test_fused_weighted_batch_norm_statistics_survive_a_large_offset():
+    """The kernel's weighted mean and variance (accumulated around a provisional mean from a row
+    sample) equal float64 NumPy's on rows with a mean 1e6 times their spread, uneven weights and a
+    row count that is no multiple of the sample stride."""
+    from sonardet.detect.sasa.ops import kernels
+
+    rng = np.random.default_rng(7)
+    R, C = 50_003, 16
+    h = (1e4 + 1e-2 * rng.standard_normal((R, C))).astype(np.float32)
+    w = rng.integers(1, 9, R).astype(np.float64)
+    wn = (w / w.sum()).astype(np.float32)
+    gamma = np.ones(C, dtype=np.float32)
+    beta = np.zeros(C, dtype=np.float32)
+    y, mean, var = kernels.weighted_bn_relu_forward(h, wn, gamma, beta, 1e-5, 2)
+    hd, wd = h.astype(np.float64), wn.astype(np.float64)
+    wd = wd / wd.sum()  # the float32 weights sum to 1 up to rounding; the kernel divides by their sum
+    want_mean = wd @ hd
+    want_var = wd @ (hd - want_mean) ** 2
+    np.testing.assert_allclose(mean, want_mean, rtol=1e-13)
+    np.testing.assert_allclose(var, want_var, rtol=1e-6)
+    assert 0.5e-4 < float(np.sqrt(want_var.mean())) < 2e-2  # the spread survived (float32 steps of 1e4: 1e-3)
+    assert np.isfinite(y).all() and (y >= 0).all()
 
 
 def test_fused_segment_max_is_bitwise_torch_segment_reduce():

@@ -339,20 +339,54 @@ def _weighted_sums(h, wn, centre, nchunks):
     return s1, s2
 
 
+#: Rows (evenly strided) whose weighted mean centres the batch-norm sums of `weighted_bn_relu_forward`.
+PROVISIONAL_MEAN_ROWS = 1024
+
+
+@numba.njit(cache=True, nogil=True)
+def _provisional_mean(h, wn):
+    """Weighted column mean (C,) float64 of at most PROVISIONAL_MEAN_ROWS evenly strided rows of h (R, C)
+    (the plain mean of those rows if their weights sum to 0; zeros for R = 0)."""
+    R, C = h.shape
+    step = max(1, R // PROVISIONAL_MEAN_ROWS)
+    acc = np.zeros(C)
+    plain = np.zeros(C)
+    wsum = 0.0
+    n = 0
+    for i in range(0, R, step):
+        w = np.float64(wn[i])
+        wsum += w
+        n += 1
+        for c in range(C):
+            acc[c] += w * np.float64(h[i, c])
+            plain[c] += np.float64(h[i, c])
+    if wsum > 0:
+        return acc / wsum
+    return plain / max(n, 1)
+
+
 @numba.njit(**_JIT_PAR)
 def weighted_bn_relu_forward(h, wn, gamma, beta, eps, nchunks):
     """Fused weighted batch norm + ReLU over rows h (R, C) float32 with row weights wn (R,) summing to 1.
 
     Returns (y (R, C) float32, mean (C,) float64, biased variance (C,) float64). The statistics are
-    accumulated in float64 (two passes: a provisional mean, then the centred sums).
+    accumulated in float64 around a provisional mean (the weighted mean of at most
+    `PROVISIONAL_MEAN_ROWS` evenly strided rows: any value near the mean keeps the centred sums from
+    cancelling, and a sample costs a fraction of a pass over all rows), then corrected by the centred
+    sums' own mean: one pass over h for the statistics, one for the output.
     """
     R, C = h.shape
-    s1, _ = _weighted_sums(h, wn, np.zeros(C), nchunks)
-    mean0 = s1.sum(axis=0)
+    mean0 = _provisional_mean(h, wn)
     s1, s2 = _weighted_sums(h, wn, mean0, nchunks)
-    shift = s1.sum(axis=0)
+    # Divided by the weights' own float64 sum (1 up to float32 rounding), so the result does not
+    # depend on the provisional mean.
+    wsum = 0.0
+    for i in range(R):
+        wsum += np.float64(wn[i])
+    wsum = wsum if wsum > 0 else 1.0
+    shift = s1.sum(axis=0) / wsum
     mean = mean0 + shift
-    var = np.maximum(s2.sum(axis=0) - shift * shift, 0.0)
+    var = np.maximum(s2.sum(axis=0) / wsum - shift * shift, 0.0)
     scale = (gamma.astype(np.float64) / np.sqrt(var + eps)).astype(np.float32)
     offset = (beta.astype(np.float64) - mean * (gamma.astype(np.float64) / np.sqrt(var + eps))).astype(np.float32)
     y = np.empty_like(h)
