@@ -27,6 +27,10 @@ rule all:
         "results/report/timeline.json",
 
 
+onstart:
+    lift_local_job_rate_limit()
+
+
 # The Snakemake process's own CPU time (scheduling, input functions, file checks) beside its jobs':
 # results/benchmarks/snakemake_process.json, read by benchmarks/workflow.py.
 onsuccess:

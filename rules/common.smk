@@ -45,6 +45,30 @@ def record_process_usage(outcome):
     )
 
 
+def lift_local_job_rate_limit():
+    """Remove the scheduler's job-start rate limit in a local run (called by the Snakefile's onstart).
+
+    Snakemake's command line caps job starts at 100 a second (--max-jobs-per-timespan 100/1s), and
+    with the cap on, its scheduler wakes every second while jobs wait for cores and runs a whole
+    scheduling round (the ready jobs' input files stat'ed, the selection): a fifth to a third of a core
+    of the 2-core machine through a full run, though no job can start before one ends. Locally at
+    most --cores jobs run at once, so the cap never binds; without it the scheduler wakes when a job
+    ends. Its value cannot be unset from the command line or a profile, and a longer timespan makes
+    Snakemake wait that long before it exits, so the limiter is removed here (the attribute Snakemake
+    9's JobScheduler keeps it in; remote executors such as SLURM keep their cap). Prints what it did.
+    """
+    scheduler = getattr(workflow, "scheduler", None)
+    if not workflow.local_exec or scheduler is None:
+        return
+    if getattr(scheduler, "job_rate_limiter", None) is None:
+        return
+    scheduler.job_rate_limiter = None
+    print(
+        "sonardet: local run: job-start rate limit lifted (the scheduler wakes when a job ends)",
+        file=sys.stderr,
+    )
+
+
 # Fixed thread counts and instruction-set paths of the numerical libraries for every job (inherited
 # from this process): the same bytes on another machine of the same kind (README, Reproducibility).
 determinism.apply()

@@ -104,6 +104,7 @@ def smoke_run(tmp_path_factory) -> Path:
     smoke_config_file(work)
     cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "--configfile", "config_smoke.yaml"]
     proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
+    (work / "snakemake_output.txt").write_text(proc.stdout + proc.stderr)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return work
 
