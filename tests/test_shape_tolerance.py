@@ -211,6 +211,50 @@ def test_bounded_signed_distance_equals_the_full_one_below_the_bound(objects, te
     assert np.array_equal(tb.signed_distance(pts, bound_m=np.inf), full)
 
 
+def test_virtual_coverage_of_all_views_at_once_equals_the_loop_over_views(objects, templates):  # noqa: F811
+    """`_coverage_virtual` (the views' points tested together, counted per view) equals the share
+    computed view by view (views below virtual_view_min_points_n left out), with a shape offset,
+    occluders and a shadow map."""
+    from sonardet.detect.model_based.models import build_class_model, rot_x, rot_z
+    from sonardet.detect.model_based.near import NearGrid
+    from sonardet.detect.model_based.params import DEFAULTS
+    from sonardet.detect.model_based.scoring import (
+        ShadowMap,
+        _asked,
+        _coverage_virtual,
+        _excused,
+        _offset_along_normals,
+        view_directions,
+        virtual_views,
+    )
+
+    tb = build_class_model(templates["tetrapod_s"], objects["tetrapod_s"], 0.05)
+    p = dict(DEFAULTS)
+    rng = np.random.default_rng(9)
+    R, t = rot_z(0.7) @ rot_x(1.2), np.array([1.0, 2.0, -11.0])
+    dirs = view_directions(p["virtual_view_incidences_deg"], int(p["virtual_view_azimuths_n"]))
+    views = virtual_views(tb, R, t, p["coverage_voxel_m"], dirs)
+    seen = np.concatenate(views)
+    for k, (drop, offset) in enumerate(((0.3, 0.0), (0.6, 0.04), (0.9, -0.03))):
+        scene = seen[rng.random(len(seen)) >= drop] + rng.normal(0, 0.01, (1, 3))
+        near = NearGrid(scene, p["coverage_m"])
+        shadow = ShadowMap(scene + [0.0, 0.0, 0.4], p["shadow_cell_m"], p["shadow_margin_m"]) if k == 1 else None
+        occluders = [np.array([t[0] + 0.4, t[1], t[2] + 1.0, 1.0, 1.0, 2.0, 0.0])] if k == 2 else []
+        want = 0.0
+        for pv in views:
+            if len(pv) < p["virtual_view_min_points_n"]:
+                continue
+            if offset:
+                pv = _offset_along_normals(tb, (pv - t) @ R, offset) @ R.T + t
+            hit = near.any_within(pv)
+            asked = _asked(pv, occluders, p) & ~_excused(pv, hit, shadow)
+            want = max(want, float((hit & asked).sum() / max(asked.sum(), p["coverage_asked_min_frac"] * len(pv), 1.0)))
+        got = _coverage_virtual(tb, R, t, near, occluders, p, offset, shadow)
+        assert got == want and 0.0 < got <= 1.0, (k, got, want)
+    # No view with enough points: 0.
+    assert _coverage_virtual(tb, R, t, near, [], dict(p, virtual_view_min_points_n=10**9)) == 0.0
+
+
 def test_upright_coverage_per_view_counts_equal_the_loop_over_views(objects, templates):  # noqa: F811
     """`_coverage_upright` (per-view counts from cumulative sums) equals the share computed view by view,
     with occluders, a shadow map and empty views among them."""

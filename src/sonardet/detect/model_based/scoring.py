@@ -282,20 +282,27 @@ def _coverage_upright(views: CoverageViews, R, t, near: NearGrid, occluders, par
 
 def _coverage_virtual(model, R, t, near: NearGrid, occluders, params: dict, offset_m: float = 0.0,
                       shadow: ShadowMap | None = None) -> float:
-    """f_t of a tumbled pose: best over the virtual views of the posed mesh (see `virtual_views`), moved by
-    the shape offset `offset_m` along their normals."""
+    """f_t of a tumbled pose: best over the virtual views of the posed mesh (see `virtual_views`) with at
+    least virtual_view_min_points_n points, moved by the shape offset `offset_m` along their normals.
+    The views' points are tested together and counted per view from cumulative sums (one pass of each
+    test instead of one per view; the same shares)."""
     floor = params["coverage_asked_min_frac"]
     dirs = view_directions(params["virtual_view_incidences_deg"], int(params["virtual_view_azimuths_n"]))
-    best = 0.0
-    for pv in virtual_views(model, R, t, params["coverage_voxel_m"], dirs):
-        if len(pv) < params["virtual_view_min_points_n"]:
-            continue
-        if offset_m:
-            pv = _offset_along_normals(model, (pv - t) @ R, offset_m) @ R.T + t
-        hit = near.any_within(pv)
-        asked = _asked(pv, occluders, params) & ~_excused(pv, hit, shadow)
-        best = max(best, float((hit & asked).sum() / max(asked.sum(), floor * len(pv), 1.0)))
-    return best
+    views = [pv for pv in virtual_views(model, R, t, params["coverage_voxel_m"], dirs)
+             if len(pv) >= params["virtual_view_min_points_n"]]
+    if not views:
+        return 0.0
+    pts = np.concatenate(views)
+    if offset_m:
+        pts = _offset_along_normals(model, (pts - t) @ R, offset_m) @ R.T + t
+    hit = near.any_within(pts)
+    asked = _asked(pts, occluders, params) & ~_excused(pts, hit, shadow)
+    bounds = np.cumsum([0] + [len(v) for v in views])
+    n_hit = np.concatenate([[0], np.cumsum(hit & asked)])
+    n_asked = np.concatenate([[0], np.cumsum(asked)])
+    a, b = bounds[:-1], bounds[1:]
+    den = np.maximum(np.maximum(n_asked[b] - n_asked[a], floor * (b - a)), 1.0)
+    return float(np.max((n_hit[b] - n_hit[a]) / den))
 
 
 def _overhang(h: Hypothesis, scene: SceneIndex, near: np.ndarray, params: dict) -> None:
