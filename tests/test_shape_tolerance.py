@@ -211,6 +211,49 @@ def test_bounded_signed_distance_equals_the_full_one_below_the_bound(objects, te
     assert np.array_equal(tb.signed_distance(pts, bound_m=np.inf), full)
 
 
+def test_virtual_views_cast_only_the_rays_that_can_hit(objects, templates):  # noqa: F811
+    """`virtual_views` leaves out the rays outside the mesh's extent on each view plane: the hit points
+    equal those of the full ray grid (a plain reference), for every class and several poses."""
+    import open3d as o3d
+
+    from sonardet.detect.model_based.models import build_class_model, rot_x, rot_z
+    from sonardet.detect.model_based.params import DEFAULTS
+    from sonardet.detect.model_based.scoring import view_directions, virtual_views
+
+    def full_grid(model, R, t, cell_m, directions):
+        v = model.vertices @ R.T + t
+        c = 0.5 * (v.min(0) + v.max(0))
+        r = 0.5 * float(np.linalg.norm(v.max(0) - v.min(0))) + cell_m
+        g = np.arange(-r, r + 1e-9, cell_m)
+        gu, gv = np.meshgrid(g, g)
+        out = []
+        for d in directions:
+            u = np.cross(d, [0.0, 1.0, 0.0] if abs(d[1]) < 0.9 else [1.0, 0.0, 0.0])
+            u /= np.linalg.norm(u)
+            w = np.cross(d, u)
+            o = c - 2.0 * r * d + gu.reshape(-1, 1) * u + gv.reshape(-1, 1) * w
+            rays = np.empty((len(o), 6), dtype=np.float32)
+            rays[:, :3] = (o - t) @ R
+            rays[:, 3:] = d @ R
+            dk = model.raycaster.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+            hit = np.isfinite(dk)
+            out.append(o[hit] + dk[hit, None] * d)
+        return out
+
+    p = dict(DEFAULTS)
+    dirs = view_directions(p["virtual_view_incidences_deg"], int(p["virtual_view_azimuths_n"]))
+    for cls in ("reef_ring", "reef_cone", "tetrapod_b", "tetrapod_s"):
+        m = build_class_model(templates[cls], objects[cls], 0.06)
+        for R in (rot_z(0.3) @ rot_x(1.1), rot_x(2.0), rot_z(1.3)):
+            t = np.array([2.0, -1.0, -11.0])
+            got = virtual_views(m, R, t, p["coverage_voxel_m"], dirs)
+            want = full_grid(m, R, t, p["coverage_voxel_m"], dirs)
+            assert len(got) == len(want) == len(dirs)
+            for a, b in zip(got, want):
+                np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+            assert sum(len(a) for a in got) > 100
+
+
 def test_virtual_coverage_of_all_views_at_once_equals_the_loop_over_views(objects, templates):  # noqa: F811
     """`_coverage_virtual` (the views' points tested together, counted per view) equals the share
     computed view by view (views below virtual_view_min_points_n left out), with a shape offset,

@@ -157,21 +157,29 @@ def virtual_views(model, R: np.ndarray, t: np.ndarray, cell_m: float, directions
     c = 0.5 * (v.min(0) + v.max(0))
     r = 0.5 * float(np.linalg.norm(v.max(0) - v.min(0))) + cell_m
     g = np.arange(-r, r + 1e-9, cell_m)
-    gu, gv = np.meshgrid(g, g)
+    gu, gv = (x.reshape(-1) for x in np.meshgrid(g, g))
     origins = []
     for d in directions:
         u = np.cross(d, [0.0, 1.0, 0.0] if abs(d[1]) < 0.9 else [1.0, 0.0, 0.0])
         u /= np.linalg.norm(u)
         w = np.cross(d, u)
-        origins.append(c - 2.0 * r * d + gu.reshape(-1, 1) * u + gv.reshape(-1, 1) * w)
-    n = gu.size
+        # Only rays that pass through the mesh's shadow on the (u, w) plane (its vertices' extent there,
+        # a millimetre wider) can hit it: the others are left out, the rays kept are those of the
+        # full grid, in its order, so the hits are the same.
+        pu, pw = (v - c) @ u, (v - c) @ w
+        keep = ((gu >= pu.min() - 1e-3) & (gu <= pu.max() + 1e-3) & (gv >= pw.min() - 1e-3)
+                & (gv <= pw.max() + 1e-3))
+        origins.append(c - 2.0 * r * d + gu[keep, None] * u + gv[keep, None] * w)
+    counts = [len(o) for o in origins]
     # One cast for every view (the rays are independent): the per-call cost of the ray caster is paid once.
-    dirs = np.repeat(np.asarray(directions, dtype=np.float64), n, axis=0)
+    dirs = np.repeat(np.asarray(directions, dtype=np.float64), counts, axis=0)
     o_all = np.concatenate(origins) if origins else np.zeros((0, 3))
     dist = model.cast((o_all - t) @ R, dirs @ R)
     out = []
+    start = 0
     for k, o in enumerate(origins):
-        dk = dist[k * n:(k + 1) * n]
+        dk = dist[start:start + counts[k]]
+        start += counts[k]
         hit = np.isfinite(dk)
         out.append(o[hit] + dk[hit, None] * directions[k])
     return out
