@@ -15,7 +15,10 @@ What is approximated: a correspondence is the sample nearest to the *cell* of th
 (its cell's nearest occupied cell), not to the point itself: at most about one cell diagonal away
 from the exact nearest sample. The point-to-plane residual measures the offset along that sample's
 normal, which barely depends on which neighbouring sample of the same surface is taken (the grid's
-cell is a quarter of the coarse surface's sample spacing). The rest follows Open3D's
+cell is a quarter of the coarse surface's sample spacing). That cell's sample is refined by a greedy
+walk on the samples' neighbour graph (`exact`, the detector's default in every stage): the exact
+nearest sample for about 99 % of the points, and a correspondence that depends on the point, not on
+which side of a cell boundary float noise puts it. The rest follows Open3D's
 `TransformationEstimationPointToPlane` with `TukeyLoss` and `registration_icp`: the same residual,
 Jacobian, weights, 6-vector update (rotation Rz Ry Rx), correspondence test (distance below the
 stage's maximum), fitness, inlier RMSE and stopping rule (the change of fitness and of RMSE between
