@@ -138,6 +138,18 @@ def _descend_one(x, y, z, j, tpts, nbrs, max_steps=64):
 
 
 @numba.njit(cache=True, nogil=True)
+def _cell_sample(x, y, z, lo, cell, nearest):
+    """The sample stored for the grid cell of (x, y, z), -1 outside the grid (NaN included)."""
+    nx, ny, nz = nearest.shape
+    fx = (x - lo[0]) / cell
+    fy = (y - lo[1]) / cell
+    fz = (z - lo[2]) / cell
+    if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0 and fx < nx and fy < ny and fz < nz):
+        return -1
+    return nearest[int(fx), int(fy), int(fz)]
+
+
+@numba.njit(cache=True, nogil=True)
 def _descend(p, idx, tpts, nbrs):
     for i in range(p.shape[0]):
         if idx[i] >= 0:
@@ -146,15 +158,9 @@ def _descend(p, idx, tpts, nbrs):
 
 @numba.njit(cache=True, nogil=True)
 def _within(p, lo, cell, nearest, nbrs, tpts, tnrm, dist, near, out):
-    nx, ny, nz = nearest.shape
     near2 = near * near
     for i in range(p.shape[0]):
-        fx = (p[i, 0] - lo[0]) / cell
-        fy = (p[i, 1] - lo[1]) / cell
-        fz = (p[i, 2] - lo[2]) / cell
-        if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0 and fx < nx and fy < ny and fz < nz):
-            continue
-        j = nearest[int(fx), int(fy), int(fz)]
+        j = _cell_sample(p[i, 0], p[i, 1], p[i, 2], lo, cell, nearest)
         if j < 0:
             continue
         j, d2 = _descend_one(p[i, 0], p[i, 1], p[i, 2], j, tpts, nbrs)
@@ -170,7 +176,6 @@ def _within(p, lo, cell, nearest, nbrs, tpts, tnrm, dist, near, out):
 def _correspond(src, T, lo, cell, nearest, nbrs, tpts, max_corr2, steps, sel, moved):
     """Move src by T into `moved`; per source point the grid's nearest sample if within max_corr
     (its index in `sel`, -1 otherwise). Returns (number of correspondences, sum of squared distances)."""
-    nx, ny, nz = nearest.shape
     n = 0
     ss = 0.0
     for i in range(src.shape[0]):
@@ -181,12 +186,7 @@ def _correspond(src, T, lo, cell, nearest, nbrs, tpts, max_corr2, steps, sel, mo
         moved[i, 1] = y
         moved[i, 2] = z
         sel[i] = -1
-        fx = (x - lo[0]) / cell
-        fy = (y - lo[1]) / cell
-        fz = (z - lo[2]) / cell
-        if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0 and fx < nx and fy < ny and fz < nz):
-            continue  # also catches NaN
-        j = nearest[int(fx), int(fy), int(fz)]
+        j = _cell_sample(x, y, z, lo, cell, nearest)
         if j < 0:
             continue
         j, d2 = _descend_one(x, y, z, j, tpts, nbrs, steps)

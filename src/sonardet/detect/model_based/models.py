@@ -95,12 +95,8 @@ class ClassModel:
             return np.zeros(0)
         p = np.asarray(pts_canonical, dtype=np.float64)
         near_m = NEAR_SPACINGS * self.surface_spacing_m
-        if not np.isfinite(bound_m):
-            dn, i = self.surface_tree.query(p, k=1)
-            dot = np.einsum("ij,ij->i", p - self.surface[i], self.surface_normals[i])
-            mag = np.where(dn < near_m, np.abs(dot), dn)
-            return np.where(dot < 0.0, -mag, mag)
         out = np.full(len(p), np.inf)
+        # An infinite bound is cKDTree's default (every point finds its nearest sample).
         dn, i = self.surface_tree.query(p, k=1, distance_upper_bound=np.nextafter(max(bound_m, near_m), np.inf))
         hit = np.isfinite(dn)
         if hit.any():
@@ -119,16 +115,7 @@ class ClassModel:
         """
         if len(pts_canonical) == 0:
             return np.zeros(0, dtype=bool)
-        p = np.asarray(pts_canonical, dtype=np.float64)
-        bound = max(float(dist_m), NEAR_SPACINGS * self.surface_spacing_m)
-        dn, i = self.surface_tree.query(p, k=1, distance_upper_bound=np.nextafter(bound, np.inf))
-        hit = np.isfinite(dn)
-        out = np.zeros(len(p), dtype=bool)
-        if hit.any():
-            ih, dh = i[hit], dn[hit]
-            dot = np.einsum("ij,ij->i", p[hit] - self.surface[ih], self.surface_normals[ih])
-            out[hit] = np.where(dh < NEAR_SPACINGS * self.surface_spacing_m, np.abs(dot), dh) < dist_m
-        return out
+        return np.isfinite(self.signed_distance(pts_canonical, bound_m=float(dist_m)))
 
     def inside(self, pts_canonical: np.ndarray) -> np.ndarray:
         """Boolean (K,) of canonical-frame points inside the (watertight) mesh."""

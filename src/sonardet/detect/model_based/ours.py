@@ -131,9 +131,9 @@ class OursClass:
     spacings); kernels: BEV kernels of the proposals (`proposals.class_kernels`); tumbled: rotations
     of the tumbled starts (`tumbled_rotations`; empty when `tumbled_inits` is off); views: the
     template views thinned to `coverage_voxel_m` with their surface normals (`scoring.CoverageViews`;
-    the template->scene fraction of upright poses); grid: the coarse target's nearest-sample grid for
-    the screening and coarse ICP stages and the fine surface's for the fine stages and the coarse
-    quality (`grid_icp`; None when `icp_grid_cell_m` is 0: Open3D ICP and SciPy's k-d tree then).
+    the template->scene fraction of upright poses); grids: the nearest-sample grids (`grid_icp`) of
+    the coarse surface (screening and first ICP stage) and of the fine surface (later stages, coarse
+    quality); None when `icp_grid_cell_m` is 0 (Open3D's ICP and SciPy's k-d tree then).
     """
 
     model: ClassModel

@@ -262,9 +262,8 @@ DESCRIPTIONS: dict = {
                                       "poses are tried once"),
     "icp_screen_stage": ("m, -, m",
                          'screening ICP of many starts: [max correspondence distance, iterations, source voxel]'),
-    "icp_grid_cell_m": ("m", "cell of the coarse surface's nearest-sample grid that runs the screening and "
-                             "coarse ICP stages of all starts of a crop in one compiled call (0: Open3D, one "
-                             "call per start)"),
+    "icp_grid_cell_m": ("m", "cell of the model surfaces' nearest-sample grids on which every ICP stage runs "
+                             "all starts of a crop in one compiled call (0: Open3D, one call per start)"),
     "icp_grid_exact_coarse": ("-", "screening and coarse stages on the grid also refine each correspondence to "
                                    "the nearest sample (as the fine stages and the coarse quality always do): "
                                    "a correspondence then depends on the point, not on the cell it falls in, "

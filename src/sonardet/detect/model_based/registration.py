@@ -155,6 +155,7 @@ class SceneSource:
         self.reason = degenerate_reason(self.points, min_points)
         self._full = point_cloud(self.points) if self.reason is None else None
         self._thin: dict = {}
+        self._arrays: dict = {}
 
     def at(self, voxel_m: float) -> o3d.geometry.PointCloud:
         """The source cloud thinned to `voxel_m` (the full cloud if thinning leaves too few points)."""
@@ -167,10 +168,9 @@ class SceneSource:
 
     def points_at(self, voxel_m: float) -> np.ndarray:
         """The points (K,3) of `at(voxel_m)` as a float64 array (scene frame, m)."""
-        key = ("np", voxel_m)
-        if key not in self._thin:
-            self._thin[key] = np.asarray(self.at(voxel_m).points)
-        return self._thin[key]
+        if voxel_m not in self._arrays:
+            self._arrays[voxel_m] = np.asarray(self.at(voxel_m).points)
+        return self._arrays[voxel_m]
 
 
 def icp_scene_to_model(scene_pts, target, R0: np.ndarray, t0: np.ndarray, stages, tukey_k_factor: float = 0.5,

@@ -380,9 +380,7 @@ def weighted_bn_relu_forward(h, wn, gamma, beta, eps, nchunks):
     s1, s2 = _weighted_sums(h, wn, mean0, nchunks)
     # Divided by the weights' own float64 sum (1 up to float32 rounding), so the result does not
     # depend on the provisional mean.
-    wsum = 0.0
-    for i in range(R):
-        wsum += np.float64(wn[i])
+    wsum = wn.astype(np.float64).sum()
     wsum = wsum if wsum > 0 else 1.0
     shift = s1.sum(axis=0) / wsum
     mean = mean0 + shift
