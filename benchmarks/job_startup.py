@@ -37,7 +37,7 @@ EXTRA = {
 }
 
 #: Which script each rule runs, for rules not named after their script (rules/*.smk).
-RULE_SCRIPT = [(r"^simulate_scene_hybrid$", "simulate_hybrid_scene"), (r"^simulate_scene_", "simulate_scene"),
+RULE_SCRIPT = [(r"^simulate_scenes_hybrid$", "simulate_hybrid_scene"), (r"^simulate_scenes?_", "simulate_scene"),
                (r"^detect_dataset_", "detect_dataset"), (r"^detect_scenes_", "detect_scenes"),
                (r"^train_", "train")]
 

@@ -188,6 +188,36 @@ for _effect, _dataset in REALISM_EFFECTS.items():
     DATASET_DIRS[_dataset] = f"results/realism_ablation/{_effect}/scenes"
 #: Datasets of the realism ablation's summary: plain sensor, every effect, one effect at a time.
 REALISM_ABLATION_DATASETS = ["dev", "realism_dev"] + list(REALISM_EFFECTS.values())
+
+
+def _scene_sets():
+    """The scene sets made from the synthetic scenes' seeds under another scene config, one job per
+    set (rules/scenes.smk: a job's start-up is paid once per set, not per scene): dataset -> (scene
+    ids, folder, config, reuse). A realism set (its sensor profile, burial) differs from the synthetic
+    scenes only after the physics, so it reuses their settled layouts (results/settled/) and MuJoCo
+    settles each scene id once; a mismatch set's bodies are perturbed, so it settles its own.
+    """
+    configs = {}
+    if config["realism_test"]["enabled"]:
+        configs["realism"] = configs["realism_dev"] = (
+            realism_test_config(config),
+            True,
+        )
+    if config["mismatch_test"]["enabled"]:
+        configs["mismatch"] = configs["mismatch_dev"] = (
+            mismatch_test_config(config),
+            False,
+        )
+    for effect, dataset in REALISM_EFFECTS.items():
+        configs[dataset] = (realism_effect_config(config, effect), True)
+    keys = ("seed", "classes", "objects", "sensor", "scenes")
+    return {
+        name: (DATASETS[name], DATASET_DIRS[name], {k: cfg[k] for k in keys}, reuse)
+        for name, (cfg, reuse) in configs.items()
+    }
+
+
+SCENE_SETS = _scene_sets()
 #: Datasets evaluated on their own (the ablation datasets are evaluated together, in one job).
 EVAL_DATASETS = [d for d in DATASETS if d not in REALISM_EFFECTS.values()]
 #: The test sets (final results); the others are development sets.

@@ -15,6 +15,7 @@ for _klass, (_priority, _ids) in SCENE_PRIORITY.items():
         output:
             npz="results/scenes/{scene}.npz",
             json="results/scenes/{scene}.json",
+            settled="results/settled/{scene}.json",
         log:
             "results/logs/simulate_scene/{scene}.log",
         benchmark:
@@ -37,116 +38,74 @@ for _klass, (_priority, _ids) in SCENE_PRIORITY.items():
             "../workflow_scripts/simulate_scene.py"
 
 
-rule simulate_scene_realism:
-    input:
-        meshes=object_files("ply"),
-        meta=object_files("json"),
-    output:
-        npz="results/realism/scenes/{scene}.npz",
-        json="results/realism/scenes/{scene}.json",
-    log:
-        "results/logs/simulate_scene_realism/{scene}.log",
-    benchmark:
-        "results/benchmarks/simulate_scene_realism/{scene}.tsv"
-    priority: PRIORITY["simulate"]
-    conda:
-        "../environment.yml"
-    threads: 1
-    resources:
-        mem_mb=MEM_MB["simulate"],
-        runtime=RUNTIME_MIN["simulate"],
-    params:
-        config={
-            k: v
-            for k, v in realism_test_config(config).items()
-            if k in ("seed", "classes", "objects", "sensor", "scenes")
-        },
-    script:
-        "../workflow_scripts/simulate_scene.py"
+# One job per scene set made under another config (common.smk: SCENE_SETS): the realism sets reuse
+# the synthetic scenes' settled layouts, the mismatch sets settle their own perturbed bodies.
+for _set, (_ids, _dir, _config, _reuse) in SCENE_SETS.items():
+
+    rule:
+        name:
+            f"simulate_scenes_{_set}"
+        input:
+            meshes=object_files("ply"),
+            meta=object_files("json"),
+            settled=expand("results/settled/{scene}.json", scene=_ids) if _reuse else [],
+        output:
+            npz=expand(f"{_dir}/{{scene}}.npz", scene=_ids),
+            json=expand(f"{_dir}/{{scene}}.json", scene=_ids),
+        log:
+            f"results/logs/simulate_scenes/{_set}.log",
+        benchmark:
+            f"results/benchmarks/simulate_scenes/{_set}.tsv"
+        priority: PRIORITY["simulate"]
+        conda:
+            "../environment.yml"
+        threads: 1
+        resources:
+            mem_mb=MEM_MB["simulate"],
+            runtime=RUNTIME_MIN["simulate"] * len(_ids),
+        params:
+            config=_config,
+            scenes=_ids,
+        script:
+            "../workflow_scripts/simulate_scene.py"
 
 
-rule simulate_scene_mismatch:
-    input:
-        meshes=object_files("ply"),
-        meta=object_files("json"),
-    output:
-        npz="results/mismatch/scenes/{scene}.npz",
-        json="results/mismatch/scenes/{scene}.json",
-    log:
-        "results/logs/simulate_scene_mismatch/{scene}.log",
-    benchmark:
-        "results/benchmarks/simulate_scene_mismatch/{scene}.tsv"
-    priority: PRIORITY["simulate"]
-    conda:
-        "../environment.yml"
-    threads: 1
-    resources:
-        mem_mb=MEM_MB["simulate"],
-        runtime=RUNTIME_MIN["simulate"],
-    params:
-        config={
-            k: v
-            for k, v in mismatch_test_config(config).items()
-            if k in ("seed", "classes", "objects", "sensor", "scenes")
-        },
-    script:
-        "../workflow_scripts/simulate_scene.py"
+if HYBRID:
 
-
-rule simulate_scene_realism_effect:
-    input:
-        meshes=object_files("ply"),
-        meta=object_files("json"),
-    output:
-        npz="results/realism_ablation/{effect}/scenes/{scene}.npz",
-        json="results/realism_ablation/{effect}/scenes/{scene}.json",
-    log:
-        "results/logs/simulate_scene_realism_effect/{effect}/{scene}.log",
-    benchmark:
-        "results/benchmarks/simulate_scene_realism_effect/{effect}/{scene}.tsv"
-    priority: PRIORITY["simulate"]
-    conda:
-        "../environment.yml"
-    threads: 1
-    resources:
-        mem_mb=MEM_MB["simulate"],
-        runtime=RUNTIME_MIN["simulate"],
-    params:
-        config=lambda w: {
-            k: v
-            for k, v in realism_effect_config(config, w.effect).items()
-            if k in ("seed", "classes", "objects", "sensor", "scenes")
-        },
-    script:
-        "../workflow_scripts/simulate_scene.py"
-
-
-rule simulate_scene_hybrid:
-    input:
-        soundings=config["hybrid_test"]["soundings"],
-        meshes=object_files("ply"),
-        meta=object_files("json"),
-    output:
-        npz="results/hybrid/scenes/{scene}.npz",
-        json="results/hybrid/scenes/{scene}.json",
-    log:
-        "results/logs/simulate_scene_hybrid/{scene}.log",
-    benchmark:
-        "results/benchmarks/simulate_scene_hybrid/{scene}.tsv"
-    priority: PRIORITY["simulate"]
-    conda:
-        "../environment.yml"
-    threads: 1
-    resources:
-        mem_mb=MEM_MB["simulate"],
-        runtime=RUNTIME_MIN["simulate"],
-    params:
-        config={
-            k: config[k]
-            for k in ("seed", "classes", "objects", "sensor", "scenes", "hybrid_test")
-        },
-    script:
-        "../workflow_scripts/simulate_hybrid_scene.py"
+    rule simulate_scenes_hybrid:
+        input:
+            soundings=config["hybrid_test"]["soundings"],
+            meshes=object_files("ply"),
+            meta=object_files("json"),
+        output:
+            npz=expand("results/hybrid/scenes/{scene}.npz", scene=DATASETS["hybrid"]),
+            json=expand("results/hybrid/scenes/{scene}.json", scene=DATASETS["hybrid"]),
+        log:
+            "results/logs/simulate_scenes/hybrid.log",
+        benchmark:
+            "results/benchmarks/simulate_scenes/hybrid.tsv"
+        priority: PRIORITY["simulate"]
+        conda:
+            "../environment.yml"
+        threads: 1
+        resources:
+            mem_mb=MEM_MB["simulate"],
+            runtime=RUNTIME_MIN["simulate"] * len(DATASETS["hybrid"]),
+        params:
+            config={
+                k: config[k]
+                for k in (
+                    "seed",
+                    "classes",
+                    "objects",
+                    "sensor",
+                    "scenes",
+                    "hybrid_test",
+                )
+            },
+            scenes=DATASETS["hybrid"],
+        script:
+            "../workflow_scripts/simulate_hybrid_scene.py"
 
 
 rule split:

@@ -1,6 +1,9 @@
 """Dumped piles: tetrapods poured into a ring fence that is removed once they rest (sonardet.sim.layout,
 sonardet.sim.scene.settle_dumps), and the config checks of the dump keys."""
 
+import copy
+import json
+
 import numpy as np
 import pytest
 
@@ -44,6 +47,23 @@ def test_a_dumped_pile_is_one_group_in_layers(dumped):
     centres = np.array([o["box"][:2] for o in objs])
     spread = np.hypot(*(centres - centres.mean(0)).T).max()
     assert spread < 6.0, spread  # still one heap, not scattered over the scene
+
+
+def test_a_realism_variant_reuses_the_poured_and_settled_piles(dumped):
+    """A realism variant of a dumped-pile scene from the settled layout (its poured and slumped
+    poses, layers and removals) is the scene settling again would give, byte for byte."""
+    cfg, objs, scene = dumped
+    variant = copy.deepcopy(cfg)
+    variant["sensor"]["realism"] = {"range_quantum_m": 0.0029}
+    with pytest.warns(Warning):
+        variant = validate_config(variant)
+    reused = simulate_scene("s0000", variant, objs, settled=json.loads(json.dumps(scene.settled)))
+    assert reused.meta["timings_s"]["physics_reused"] == 1.0 and "dump_physics_s" not in reused.meta["timings_s"]
+    assert [o["layer"] for o in reused.meta["objects"]] == [o["layer"] for o in scene.meta["objects"]]
+    again = simulate_scene("s0000", variant, objs)
+    for k in ("xyz", "label"):
+        assert getattr(again, k).tobytes() == getattr(reused, k).tobytes(), k
+    assert again.meta["objects"] == reused.meta["objects"] and again.meta["rocks"] == reused.meta["rocks"]
 
 
 def test_dumped_spawns_start_apart_and_tumbled(dumped):

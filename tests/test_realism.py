@@ -1,5 +1,6 @@
 """Sensor realism profile: each effect does what it says, all-off changes no byte, seeds reproduce."""
 
+import json
 from dataclasses import fields
 
 import numpy as np
@@ -329,22 +330,51 @@ TINY = {"seed": 3, "classes": ["reef_cone", "tetrapod_s"], "objects": {"sections
 
 @pytest.fixture(scope="module")
 def tiny_scenes():
-    def make(sensor_extra=None, scenes_extra=None):
+    def make(sensor_extra=None, scenes_extra=None, settled=None, scene_id="s0001"):
         cfg = {**TINY, "sensor": {**TINY["sensor"], **(sensor_extra or {})},
                "scenes": {**TINY["scenes"], **(scenes_extra or {})}}
         cfg = validate_config(cfg)
-        return simulate_scene("s0001", cfg, objects)
+        return simulate_scene(scene_id, cfg, objects, settled=settled)
 
     objects = {}
     cfg = validate_config(TINY)
     for c in cfg["classes"]:
         m = build_object(c, cfg["objects"])
         objects[c] = object_info(m, 2400.0)
+    plain = make()
+    realism = ({"realism": {"range_quantum_m": 0.0029, "footprint_n_across": 3}}, {"realism": {"burial_m": [0.1, 0.3]}})
     return {
-        "plain": make(),
+        "plain": plain,
         "off": make({"realism": {}}, {"realism": {"burial_m": [0, 0]}}),
         "buried": make(None, {"realism": {"burial_m": [0.1, 0.3]}}),
+        "realism": make(*realism),
+        # the workflow's realism variants: the plain scene's settled layout, through its JSON file
+        "realism_reused": make(*realism, settled=json.loads(json.dumps(plain.settled))),
     }
+
+
+def test_a_realism_variant_reusing_the_settled_layout_is_the_same_scene(tiny_scenes):
+    """The workflow's realism scenes reuse their synthetic scene's settled layout (no second MuJoCo
+    run): the soundings and the metadata are those of settling again, byte for byte."""
+    a, b = tiny_scenes["realism"], tiny_scenes["realism_reused"]
+    for k in ("xyz", "ping", "beam", "line", "label"):
+        assert getattr(a, k).tobytes() == getattr(b, k).tobytes(), k
+    ta, tb = a.meta.pop("timings_s"), b.meta.pop("timings_s")
+    try:
+        assert json.dumps(a.meta) == json.dumps(b.meta)
+    finally:
+        a.meta["timings_s"], b.meta["timings_s"] = ta, tb
+    assert "physics_step_s" in ta and "physics_step_s" not in tb and tb["physics_reused"] == 1.0
+    assert any("burial_m" in o for o in b.meta["objects"]) and b.settled == a.settled
+
+
+def test_a_settled_layout_of_another_scene_or_config_is_refused(tiny_scenes):
+    settled = tiny_scenes["plain"].settled
+    with pytest.raises(ValueError, match="does not belong to scene 's0002'"):
+        simulate_scene("s0002", validate_config(TINY), {}, settled=settled)
+    other = validate_config({**TINY, "seed": 4})
+    with pytest.raises(ValueError, match="seed, classes, objects"):
+        simulate_scene("s0001", other, {}, settled=settled)
 
 
 def test_all_off_scene_has_the_same_points(tiny_scenes):

@@ -121,6 +121,11 @@ def test_realism_scenes_share_the_layout(smoke_run):
     pa = np.load(smoke_run / f"results/scenes/{sid}.npz")["xyz"]
     pb = np.load(smoke_run / f"results/realism/scenes/{sid}.npz")["xyz"]
     assert pa.shape != pb.shape or not np.array_equal(pa, pb)
+    # MuJoCo settled the scene once: the realism variant applied the synthetic scene's settled layout.
+    settled = json.loads((smoke_run / f"results/settled/{sid}.json").read_text())
+    assert settled["scene"] == sid and len(settled["kept"]) == len(a["objects"])
+    assert b["timings_s"]["physics_reused"] == 1.0 and "physics_step_s" in a["timings_s"]
+    assert "settled layout reused" in (smoke_run / "results/logs/simulate_scenes/realism.log").read_text()
 
 
 def test_domain_randomised_training(smoke_run):

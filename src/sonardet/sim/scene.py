@@ -52,6 +52,9 @@ class Scene:
     line: np.ndarray
     label: np.ndarray
     meta: dict = field(default_factory=dict)
+    #: The settled layout (:func:`settled_state`): what a variant of this scene whose config differs
+    #: only after the physics reuses instead of settling again. Not part of the scene files.
+    settled: dict = field(default_factory=dict)
 
 
 def class_counts(cfg: dict, classes: list[str], rng) -> dict:
@@ -79,9 +82,11 @@ def _overlaps(bounds_xy, rect) -> bool:
     return not (x1 < rect[0] or x0 > rect[1] or y1 < rect[2] or y0 > rect[3])
 
 
-def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], cull: bool | None = None) -> Scene:
+def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], cull: bool | None = None,
+                   settled: dict | None = None) -> Scene:
     """Synthesize one scene from the validated config and the class models. Deterministic for a
-    (config, scene_id) pair. cull overrides `scenes.cull_to_swath` (benchmarks compare both)."""
+    (config, scene_id) pair. cull overrides `scenes.cull_to_swath` (benchmarks compare both).
+    settled: this scene's settled layout (:func:`apply_settled`), applied instead of the physics."""
     sc = config["scenes"]
     seed = derive_seed(config["seed"], "scene", scene_id)
     rngs = {k: np.random.default_rng(derive_seed(seed, k)) for k in
@@ -92,12 +97,7 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
     sensor = SensorConfig.from_dict(config["sensor"])
     sb = sc["seabed"]
     sv = sc["survey"]
-    altitude = sv["transducer_z_m"] - sb["mean_depth_m"]
-    if altitude <= 0:
-        raise ValueError(
-            f"scenes.seabed.mean_depth_m ({sb['mean_depth_m']} m) must lie below scenes.survey.transducer_z_m "
-            f"({sv['transducer_z_m']} m)"
-        )
+    altitude = _altitude_m(sb, sv)
 
     t0 = time.perf_counter()
     hf = _make_seabed(sb, (ex, ey), rngs["seabed"])
@@ -115,9 +115,13 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
 
     # Physics, then burial: settled objects sink into the sediment (the physics knows no sediment).
     t0 = time.perf_counter()
-    kept, removed, phys, rocks = _settle_scene(scene_id, spawns, objects, hf, sc, rngs["physics"], extent, rocks,
-                                               rock_meta, timings, own)
+    if settled is None:
+        kept, removed, phys, rocks = _settle_scene(scene_id, spawns, objects, hf, sc, rngs["physics"], extent, rocks,
+                                                   rock_meta, timings, own)
+    else:
+        kept, removed, phys, rocks = apply_settled(settled, scene_id, config, spawns, rocks, rock_meta, timings)
     timings["physics_s"] = time.perf_counter() - t0
+    state = settled_state(scene_id, config, spawns, kept, removed, phys, rock_meta)  # before the burial
     burial_m = (sc.get("realism") or {}).get("burial_m", [0.0, 0.0])
     kept, buried = bury_objects(kept, spawns, burial_m, np.random.default_rng(derive_seed(seed, "burial")))
 
@@ -154,7 +158,81 @@ def simulate_scene(scene_id: str, config: dict, objects: dict[str, ObjectInfo], 
                   "points_per_m2": float(inside.sum() / (ex * ey))},
         "timings_s": timings,
     }
-    return Scene(snd.xyz[inside], snd.ping[inside], snd.beam[inside], snd.line[inside], label, meta)
+    return Scene(snd.xyz[inside], snd.ping[inside], snd.beam[inside], snd.line[inside], label, meta, state)
+
+
+def settled_key(scene_id: str, config: dict) -> str:
+    """Hash of what a scene's settled layout depends on: the scene id and the config's seed, classes,
+    objects, sensor and scenes sections without their realism parts (`sensor.realism` and
+    `scenes.realism` act after the physics: burial, sensor effects)."""
+    return config_hash({
+        "scene": scene_id,
+        **{k: config[k] for k in ("seed", "classes", "objects")},
+        **{k: {kk: vv for kk, vv in config[k].items() if kk != "realism"} for k in ("sensor", "scenes")},
+    })
+
+
+def settled_state(scene_id: str, config: dict, spawns, kept, removed: list, phys: dict, rock_meta: list) -> dict:
+    """The settled layout of a scene as JSON-ready data: its key (:func:`settled_key`), every spawn's
+    pose (t (3,) m, q (4,) w,x,y,z) and layer after the physics, the kept objects [(spawn index, t, q)],
+    the removed ones, the physics summary and the rocks the physics rejected. Floats are kept exact
+    (JSON writes the shortest repr that reads back to the same float64)."""
+    return {
+        "scene": scene_id,
+        "key": settled_key(scene_id, config),
+        "spawns": [{"t": [float(v) for v in sp.t], "q": [float(v) for v in sp.q], "layer": int(sp.layer)}
+                   for sp in spawns],
+        "kept": [{"spawn": int(k), "t": [float(v) for v in t], "q": [float(v) for v in q]} for k, t, q in kept],
+        "removed": removed,
+        "physics": phys,
+        "rocks_removed": [k for k, r in enumerate(rock_meta) if r.get("removed")],
+    }
+
+
+def apply_settled(settled: dict, scene_id: str, config: dict, spawns, rocks: list, rock_meta: list,
+                  timings: dict | None = None):
+    """Put a scene's spawns into the settled layout `settled` (:func:`settled_state` of the same
+    scene under a config with the same :func:`settled_key`, e.g. the synthetic scene a realism
+    variant shares its seeds with) instead of running the physics, which gives the same scene: spawn
+    poses and layers, rejected rocks flagged and left out; `timings` gets ``physics_reused`` 1.
+    Returns (kept, removed, physics summary, remaining rocks) like the physics step. ValueError when
+    the key or the spawn count differs."""
+    key = settled_key(scene_id, config)
+    if settled.get("key") != key or settled.get("scene") != scene_id:
+        raise ValueError(
+            f"settled layout of scene {settled.get('scene')!r} (key {settled.get('key')}) does not belong to scene "
+            f"{scene_id!r} under this config (key {key}): its seed, classes, objects, sensor or scenes settings "
+            "differ beyond their realism parts; simulate the scene without it"
+        )
+    if len(settled["spawns"]) != len(spawns):
+        raise ValueError(f"settled layout of scene {scene_id!r} has {len(settled['spawns'])} spawns, the layout "
+                         f"{len(spawns)}: it was made by another version of the simulator; simulate without it")
+    for sp, st in zip(spawns, settled["spawns"]):
+        sp.t = np.array(st["t"], dtype=np.asarray(sp.t).dtype)
+        sp.q = np.array(st["q"], dtype=np.asarray(sp.q).dtype)
+        sp.layer = int(st["layer"])
+    kept = [(int(e["spawn"]), np.array(e["t"], dtype=np.float64), np.array(e["q"], dtype=np.float64))
+            for e in settled["kept"]]
+    gone = set(settled["rocks_removed"])
+    for k in gone:
+        rock_meta[k]["removed"] = True
+    rocks = [r for k, r in enumerate(rocks) if k not in gone]
+    if timings is not None:
+        timings["physics_reused"] = 1.0
+    log.info("%s: settled layout reused (%d objects kept, %d removed by the physics)", scene_id, len(kept),
+             len(settled["removed"]))
+    return kept, [dict(r) for r in settled["removed"]], dict(settled["physics"]), rocks
+
+
+def _altitude_m(seabed: dict, survey: dict) -> float:
+    """The transducer's height above the mean seabed (m); ValueError when the seabed is not below it."""
+    altitude = survey["transducer_z_m"] - seabed["mean_depth_m"]
+    if altitude <= 0:
+        raise ValueError(
+            f"scenes.seabed.mean_depth_m ({seabed['mean_depth_m']} m) must lie below scenes.survey.transducer_z_m "
+            f"({survey['transducer_z_m']} m)"
+        )
+    return altitude
 
 
 def _make_seabed(sb: dict, extent_m, rng: np.random.Generator):
