@@ -1,8 +1,11 @@
-"""Scene simulation speed and density, and what swath culling and at-rest physics save.
+"""Scene simulation speed and density, and what swath culling, at-rest physics and settled-layout reuse save.
 
 For N scenes of a config: seconds per scene (per stage), points per scene, points per m^2, rays per
 second of the scan stage. On the first scene it also reruns (a) the scan without swath culling and
-(b) the physics without island sleeping, in the same run, and reports the time each saves.
+(b) the physics without island sleeping, in the same run, and reports the time each saves. For every
+scene it then makes the realism test variant (`realism_test`: the sensor's realism profile, burial)
+twice, settling again and from the scene's settled layout as the workflow does, and reports the
+seconds of each and whether the two are the same scene (soundings and annotations, byte for byte).
 
     python benchmarks/simulate.py [--config config/config.yaml] [--scenes 5] [--json out.json]
 """
@@ -19,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from sonardet.config import read_config
+from sonardet.config.realism import realism_test_config
 from sonardet.objects import build_object
 from sonardet.objects import object_info
 from sonardet.sim.dataset import scene_ids
@@ -41,11 +45,12 @@ def main():
     args = ap.parse_args()
     cfg = read_config(args.config)
     objs = objects_of(cfg)
-    rows = []
+    rows, settled = [], {}
     for sid in scene_ids(args.scenes):
         t0 = time.perf_counter()
         sc = simulate_scene(sid, cfg, objs)
         total = time.perf_counter() - t0
+        settled[sid] = json.loads(json.dumps(sc.settled))  # through JSON, as the workflow's file
         m = sc.meta
         rows.append({"scene": sid, "total_s": total, **m["timings_s"], "points": m["stats"]["n_points"],
                      "points_per_m2": m["stats"]["points_per_m2"], "rays": m["stats"]["n_rays"],
@@ -83,8 +88,32 @@ def main():
           f"identical point count: {summary['same_points_with_and_without_culling']}")
     print(f"physics at rest ({sid}): stepping {summary['physics_nosleep_step_s']:.2f} s without sleeping -> "
           f"{summary['physics_sleep_step_s']:.2f} s with sleeping")
+    summary.update(realism_reuse(cfg, objs, settled))
+    print(f"realism variants ({summary['realism_scenes']} scenes): {summary['realism_settle_s']:.2f} s/scene settling "
+          f"again -> {summary['realism_reuse_s']:.2f} s/scene from the settled layout; the same scenes: "
+          f"{summary['realism_same_scenes']}")
     if args.json:
         Path(args.json).write_text(json.dumps({"summary": summary, "scenes": rows}, indent=1))
+
+
+def realism_reuse(cfg: dict, objs: dict, settled: dict) -> dict:
+    """Seconds per realism variant (`realism_test_config`) of each scene, settled again and from its
+    settled layout, and whether every pair is the same scene byte for byte (timings aside)."""
+    rcfg = realism_test_config(cfg)
+    times = {"settle": [], "reuse": []}
+    same = True
+    for sid, layout in settled.items():
+        t0 = time.perf_counter()
+        a = simulate_scene(sid, rcfg, objs)
+        times["settle"].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        b = simulate_scene(sid, rcfg, objs, settled=layout)
+        times["reuse"].append(time.perf_counter() - t0)
+        same &= all(getattr(a, k).tobytes() == getattr(b, k).tobytes() for k in ("xyz", "ping", "beam", "line", "label"))
+        ma, mb = ({k: v for k, v in m.items() if k != "timings_s"} for m in (a.meta, b.meta))
+        same &= json.dumps(ma) == json.dumps(mb)
+    return {"realism_scenes": len(settled), "realism_settle_s": float(np.mean(times["settle"])),
+            "realism_reuse_s": float(np.mean(times["reuse"])), "realism_same_scenes": bool(same)}
 
 
 if __name__ == "__main__":
