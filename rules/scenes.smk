@@ -39,7 +39,8 @@ for _klass, (_priority, _ids) in SCENE_PRIORITY.items():
 
 
 # One job per scene set made under another config (common.smk: SCENE_SETS): the realism sets reuse
-# the synthetic scenes' settled layouts, the mismatch sets settle their own perturbed bodies.
+# the synthetic scenes' settled layouts, the mismatch sets settle their own perturbed bodies. Scene
+# jobs go before the detections that wait for them (common.smk: SCENE_PRIORITY_REST).
 for _set, (_ids, _dir, _config, _reuse) in SCENE_SETS.items():
 
     rule:
@@ -56,7 +57,7 @@ for _set, (_ids, _dir, _config, _reuse) in SCENE_SETS.items():
             f"results/logs/simulate_scenes/{_set}.log",
         benchmark:
             f"results/benchmarks/simulate_scenes/{_set}.tsv"
-        priority: PRIORITY["simulate"]
+        priority: SCENE_PRIORITY_REST
         conda:
             "../environment.yml"
         threads: 1
@@ -84,7 +85,7 @@ if HYBRID:
             "results/logs/simulate_scenes/hybrid.log",
         benchmark:
             "results/benchmarks/simulate_scenes/hybrid.tsv"
-        priority: PRIORITY["simulate"]
+        priority: SCENE_PRIORITY_REST
         conda:
             "../environment.yml"
         threads: 1
