@@ -62,6 +62,8 @@ def main():
     ap.add_argument("--params-ours", default="{}", help="JSON overrides of the ours defaults")
     ap.add_argument("--params-paper", default="{}", help="JSON overrides of the paper defaults")
     ap.add_argument("--no-skip-compare", action="store_true", help="skip the empty-window comparison")
+    ap.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)),
+                    help="worker threads of one detection call (default: the cores this process may use)")
     ap.add_argument("--json", default=None, help="write all numbers to this JSON file")
     args = ap.parse_args()
     results = Path(args.results)
@@ -81,7 +83,7 @@ def main():
     out = {"scenes": ids, "variants": {}}
     for variant in args.variants.split(","):
         rows, dets = [], {}
-        detector = ModelBasedDetector(templates, objects, params[variant], variant)  # class models built once
+        detector = ModelBasedDetector(templates, objects, params[variant], variant, threads=args.threads)  # models built once
         for sid in ids:
             d, st = detector(points[sid])
             dets[sid] = d

@@ -14,6 +14,7 @@ from sonardet.detect.model_based import DEFAULTS
 from sonardet.detect.model_based.models import build_class_model
 from sonardet.detect.model_based.near import NearGrid
 from sonardet.detect.model_based.scoring import Hypothesis, view_directions, virtual_views
+from sonardet.detect.model_based.tasks import task_stats
 from sonardet.objects import build_object, object_info
 from sonardet.sim.mbes import SensorConfig
 from sonardet.sim.templates import scan_templates
@@ -99,6 +100,7 @@ def test_refit_gate_spares_hypotheses_whose_inliers_were_taken(monkeypatch):
     st = St()
     st.pts, st.active = pts, np.ones(n, dtype=bool)
     st.tree_xy = cKDTree(pts[:, :2])
+    st.pool = None  # no worker threads
     cand = np.arange(50)
     inl = np.zeros(50, dtype=bool)
     inl[:20] = True  # inliers: points 0-19
@@ -123,6 +125,81 @@ def test_refit_gate_spares_hypotheses_whose_inliers_were_taken(monkeypatch):
         for gone in (took_inliers, took_others):
             h = hyp()
             ours._update_pending(st, {"tetrapod_s": K}, [h], [], gone, gone.copy(),
-                                 dict(p, refit_inliers_lost_max_frac=gate), {"refits": 0},
+                                 dict(p, refit_inliers_lost_max_frac=gate), task_stats(),
                                  {"tetrapod_s": 0.05})
         assert len(calls) == want
+
+
+def _shadow_tops_numpy(pts, cell):
+    """The shadow map's raster as written with NumPy and SciPy (the reference of the compiled pass)."""
+    from scipy import ndimage as ndi
+
+    lo = pts[:, :2].min(0) - cell
+    ij = np.floor((pts[:, :2] - lo) / cell).astype(np.int64)
+    top = np.full(ij.max(0) + 2, -np.inf)
+    np.maximum.at(top, (ij[:, 0], ij[:, 1]), pts[:, 2])
+    return ndi.maximum_filter(top, size=3, mode="constant", cval=-np.inf)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_shadow_map_raster_equals_numpy_and_scipy(seed):
+    from sonardet.detect.model_based.scoring import ShadowMap
+
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform([-3, 5, -12], [1, 7, -10], size=(3000, 3))
+    pts[:50] = pts[0]  # repeated points: one cell, one height
+    for cell in (0.1, 0.15, 0.4):
+        np.testing.assert_array_equal(ShadowMap(pts, cell, 0.2).top, _shadow_tops_numpy(pts, cell))
+    one = np.array([[2.0, -1.0, -11.0]])
+    np.testing.assert_array_equal(ShadowMap(one, 0.15, 0.2).top, _shadow_tops_numpy(one, 0.15))
+
+
+def test_seabed_cell_medians_equal_numpy_median():
+    from sonardet.detect.model_based.ground import _cell_stat
+
+    rng = np.random.default_rng(3)
+    shape = (7, 9)
+    ix, iy = rng.integers(0, shape[1], 5000), rng.integers(0, shape[0], 5000)
+    keep = ~((ix == 4) & (iy == 2))  # one empty cell
+    ix, iy = ix[keep], iy[keep]
+    z = np.round(rng.normal(-11.0, 0.3, len(ix)), 2)  # ties
+    got = _cell_stat(ix, iy, z, shape, "median")
+    for i in range(shape[0]):
+        for j in range(shape[1]):
+            sel = (iy == i) & (ix == j)
+            if sel.any():
+                assert got[i, j] == np.median(z[sel])
+            else:
+                assert np.isnan(got[i, j])
+    assert np.isnan(_cell_stat(ix[:0], iy[:0], z[:0], shape, "median")).all()
+
+
+def test_tasks_run_in_order_and_merge_their_statistics():
+    from sonardet.detect.model_based.tasks import run_tasks, submit_tasks, worker_pool
+
+    def piece(i, part):
+        part["icp_runs"] += i
+        part["icp_runs_by_kind"]["k"] = part["icp_runs_by_kind"].get("k", 0) + 1
+        part["seconds"]["scoring"] += 0.5
+        return i * i
+
+    for threads in (1, 2, 3):
+        stats = task_stats()
+        with worker_pool(threads) as pool:
+            assert (pool is None) == (threads == 1)
+            assert run_tasks(pool, piece, list(range(10)), stats) == [i * i for i in range(10)]
+            later = submit_tasks(pool, piece, [3, 4])
+            assert later.results(stats) == [9, 16]
+        assert stats["icp_runs"] == 45 + 7 and stats["icp_runs_by_kind"] == {"k": 12}
+        assert stats["seconds"]["scoring"] == 6.0
+
+    def fails(i, part):
+        if i == 2:
+            raise RuntimeError("piece 2 failed")
+        return i
+
+    with worker_pool(2) as pool, pytest.raises(RuntimeError, match="piece 2"):
+        run_tasks(pool, fails, [0, 1, 2, 3])
+    with pytest.raises(ValueError, match="threads"):
+        with worker_pool(0):
+            pass

@@ -430,3 +430,39 @@ def test_a_sounding_100_km_away_changes_no_detection(objects, templates, sensor)
     assert json.dumps(dets) == json.dumps(ref) and len(ref) == 2
     assert info["fliers"]["n_points"] == 1 and info["n_tiles"] == 1
     assert peak < 200e6  # the detector's own working set; no grid over the 100 km box
+
+
+def test_worker_threads_give_the_same_detections_and_counts(objects, templates, sensor, monkeypatch):
+    """`threads` changes only the time: a crowded patch (touching objects, a cone on its side) gives the
+    same detections and counts with 1 and with 3 worker threads, and the fits did run on the workers."""
+    import threading
+
+    import sonardet.detect.model_based.ours as ours
+    from sonardet.geometry import matrix_to_quat
+
+    cone, ring, tb, ts = (objects[c] for c in ("reef_cone", "reef_ring", "tetrapod_b", "tetrapod_s"))
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # the cone on its side
+    q_side = matrix_to_quat(R)
+    z_side = SEABED_Z - (np.asarray(cone.mesh.vertices) @ R.T)[:, 2].min()
+    placed = [(ring, *place(ring, 3.5, 4.0, 0.0)), (cone, *place(cone, 5.9, 4.2, 0.0)),
+              (tb, *place(tb, 9.0, 9.5, 0.4)), (ts, *place(ts, 10.6, 8.2, 1.3)),
+              (cone, np.array([4.0, 10.0, z_side]), q_side)]
+    xyz = survey(placed, sensor, extent_m=14.0, seed=5)
+    names = set()
+    coarse = ours._Job.coarse
+
+    def recording(self, *a, **k):
+        names.add(threading.current_thread().name)
+        return coarse(self, *a, **k)
+
+    monkeypatch.setattr(ours._Job, "coarse", recording)
+    one, s1 = ModelBasedDetector(templates, objects, threads=1)(xyz)
+    assert names == {threading.current_thread().name}
+    names.clear()
+    three, s3 = ModelBasedDetector(templates, objects, threads=3)(xyz)
+    assert any(n.startswith("sonardet-detect") for n in names)
+    assert one == three and len(accepted(one)) >= 4
+    s1.pop("seconds"), s3.pop("seconds")
+    assert s1 == s3 and s1["icp_runs_by_kind"].get("tumbled", 0) > 0
+    with pytest.raises(ValueError, match="threads"):
+        ModelBasedDetector(templates, objects, threads=0)

@@ -179,21 +179,31 @@ def test_a_failing_tile_is_named(survey):
 def _threads(points):
     import torch
 
+    from sonardet.detect.model_based.tasks import worker_pool
+
     dets, stats = mound_detector(points)
-    return dets, {**stats, "torch_threads": torch.get_num_threads(), "omp": os.environ.get("OMP_NUM_THREADS")}
+    with worker_pool(4) as pool:  # what the model-based detector would get for its fits
+        detector_threads = 1 if pool is None else pool._max_workers
+    return dets, {**stats, "torch_threads": torch.get_num_threads(), "omp": os.environ.get("OMP_NUM_THREADS"),
+                  "detector_threads": detector_threads}
 
 
 def test_workers_run_one_thread_each(survey):
-    """PyTorch, loaded in the parent with 2 threads, runs on one thread in each worker; the parent keeps
-    its setting."""
+    """PyTorch, loaded in the parent with 2 threads, and the model-based detector's worker threads (4
+    asked) run on one thread in each worker; the parent keeps its settings."""
     torch = pytest.importorskip("torch")
+    from sonardet.detect.model_based.tasks import worker_pool
+
     old = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
         _, rows = detect_tiled(survey, _threads, 30.0, 3.0, progress=False, jobs=2)
         assert {r["stats"]["torch_threads"] for r in rows} == {1}
         assert {r["stats"]["omp"] for r in rows} == {"1"}
+        assert {r["stats"]["detector_threads"] for r in rows} == {1}
         assert torch.get_num_threads() == 2
+        with worker_pool(4) as pool:
+            assert pool._max_workers == 4
     finally:
         torch.set_num_threads(old)
 

@@ -194,9 +194,12 @@ def _detect_run(args, cfg: dict, classes: list[str]):
     if "model" in method.resources and not model.is_file():
         raise FileNotFoundError(f"{model}: no trained model for {method.name}; train it with `snakemake --cores 2 "
                                 f"{model}` in the workflow folder or give its file with --model")
+    # Default threads: the model-based detector's fits give the same detections on any number of threads,
+    # so it takes every core (a tile worker process keeps one); a learned method keeps PyTorch on one.
+    threads = args.threads if args.threads is not None else (available_cores() if method.family == "model_based" else 1)
     detector = methods.family(method.family).load(method, Resources(
         objects=objects, templates=templates, model_path=model if "model" in method.resources else None,
-        threads=args.threads))
+        threads=threads))
     return DetectRun(method.name, detector, classes, args.tile_m, args.overlap_m, footprint, args.all_hypotheses,
                      keep_fliers=args.keep_fliers, objects=objects, colours=_class_colours(classes),
                      progress=not args.quiet, jobs=args.jobs if args.jobs is not None else available_cores())
@@ -211,6 +214,8 @@ def _run_detect(args) -> int:
     if args.jobs is not None and args.jobs < 1:
         raise ValueError(f"--jobs {args.jobs}: the number of tiles detected at once must be at least 1 (default: "
                          f"all CPU cores)")
+    if args.threads is not None and args.threads < 1:
+        raise ValueError(f"--threads {args.threads}: a detection needs at least 1 thread")
     cfg = _config(args)
     classes = list(args.classes) if args.classes else list(cfg["classes"])
     cfg["classes"] = classes
@@ -319,8 +324,10 @@ def _add_detect_parser(sub) -> None:
                    help="workflow config whose settings the method uses (default: the built-in defaults)")
     p.add_argument("--plugins", nargs="+", default=None,
                    help="plugin modules (.py files or module names) registering more methods or classes")
-    p.add_argument("--threads", type=int, default=1,
-                   help="CPU threads of a learned method (default: 1; with --jobs above 1 each tile process uses one)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="CPU threads of one detection: PyTorch's of a learned method (default 1), the worker threads "
+                        "of model-based `ours` (default: all CPU cores this process may use; the same detections on "
+                        "any number); with --jobs above 1 each tile process uses one")
     p.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="tiles detected at once, each in its own process on one thread (default: all CPU cores "
                         "this process may use; a survey of one tile runs in one process); the detections are "

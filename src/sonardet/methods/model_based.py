@@ -71,8 +71,8 @@ class ModelBased(MethodFamily):
 
     def load(self, method: Method, resources: Resources):
         """A ModelBasedDetector: the class models are built once (its `build_seconds`), then it runs on
-        each point cloud."""
+        each point cloud, `ours` fitting on `resources.threads` worker threads."""
         from ..detect.model_based import ModelBasedDetector
 
         return ModelBasedDetector(resources.templates, resources.objects, method.settings["params"],
-                                  method.settings["variant"])
+                                  method.settings["variant"], threads=max(1, int(resources.threads)))

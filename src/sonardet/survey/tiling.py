@@ -425,8 +425,9 @@ _WORKER_LIMITS: list = []
 def _one_thread_per_worker() -> None:
     """Initializer of a tile worker: one thread for each numerical library, so `jobs` workers load `jobs`
     cores. Libraries loaded later in the worker read the thread variables; those the parent had loaded
-    are set through their own calls (threadpoolctl for BLAS/OpenMP when installed; PyTorch, Numba and
-    Open3D directly), since the variables are read only when a library loads."""
+    are set through their own calls (threadpoolctl for BLAS/OpenMP when installed; PyTorch, Numba,
+    Open3D and the model-based detector's worker threads directly), since the variables are read only
+    when a library loads."""
     for name in THREAD_VARIABLES:
         os.environ[name] = "1"
     if "numba" not in sys.modules:  # Numba refuses a NUMBA_NUM_THREADS changed after it was imported
@@ -449,6 +450,9 @@ def _one_thread_per_worker() -> None:
     o3d = sys.modules.get("open3d")
     if o3d is not None and hasattr(o3d.utility, "set_max_threads"):
         o3d.utility.set_max_threads(1)
+    tasks = sys.modules.get("sonardet.detect.model_based.tasks")
+    if tasks is not None:  # the model-based detector's worker threads
+        tasks.limit_threads(1)
 
 
 def _tile_job(token: int, tile: Tile):

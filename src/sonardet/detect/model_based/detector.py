@@ -27,6 +27,7 @@ from .models import ClassModel, build_class_model
 from .ours import detect_ours, prepare_classes
 from .paper import detect_paper
 from .params import resolve_params
+from .tasks import worker_pool
 
 _STAGES = ("ground", "models", "proposals", "registration", "scoring", "selection")
 
@@ -91,11 +92,18 @@ class ModelBasedDetector:
     derived from them (ICP targets, BEV kernels, tumbled rotations, thinned template views) are built
     here once; `build_seconds` says how long that took (s). Calling the detector on a cloud
     (`detector(xyz)`) runs the pipeline; the same cloud gives the same detections on every call.
-    Raises ValueError for an unknown variant or parameter, no classes, or a class without templates.
+    threads: worker threads of one call ('ours' fits a round's proposals on them, `tasks`; 'paper'
+    ignores it); the detections and counts are the same for any number, only the time differs.
+    Raises ValueError for an unknown variant or parameter, no classes, a class without templates, or
+    threads < 1.
     """
 
-    def __init__(self, templates: dict, objects: dict, params: dict | None = None, variant: str = "ours"):
+    def __init__(self, templates: dict, objects: dict, params: dict | None = None, variant: str = "ours",
+                 threads: int = 1):
         t = time.perf_counter()
+        if int(threads) < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+        self.threads = int(threads)
         self.variant = variant
         self.params = resolve_params(params, variant)
         if not objects:
@@ -134,7 +142,8 @@ class ModelBasedDetector:
         o3d.utility.set_max_threads(1)
         try:
             if self.variant == "ours":
-                hyps = detect_ours(local, self.ours_classes, p, stats)
+                with worker_pool(self.threads) as pool:
+                    hyps = detect_ours(local, self.ours_classes, p, stats, pool)
             else:
                 hyps = detect_paper(local, self.models, p, stats)
         finally:

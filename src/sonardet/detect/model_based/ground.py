@@ -13,6 +13,8 @@ import numpy as np
 import open3d as o3d
 from scipy import ndimage as ndi
 
+from ...jit import numba
+
 
 @dataclass
 class Ground:
@@ -105,6 +107,31 @@ def _robust_plane(a: np.ndarray, n_iter: int = 3, keep_m: float = 0.3) -> np.nda
     return (A @ coef).reshape(a.shape)
 
 
+@numba.njit(cache=True, nogil=True)
+def _cell_medians(flat, z, n_cells):
+    """Median of z per cell index `flat` (0..n_cells-1; NaN for empty cells): the points are bucketed by
+    cell (counting sort, O(N)) and each cell's few values sorted on their own, instead of one lexsort
+    of all N points. The median of an even count is the mean of the two middle values, as np.median."""
+    counts = np.zeros(n_cells + 1, dtype=np.int64)
+    for k in range(flat.shape[0]):
+        counts[flat[k] + 1] += 1
+    for c in range(n_cells):
+        counts[c + 1] += counts[c]
+    pos = counts[:-1].copy()
+    zs = np.empty(z.shape[0])
+    for k in range(flat.shape[0]):
+        zs[pos[flat[k]]] = z[k]
+        pos[flat[k]] += 1
+    out = np.full(n_cells, np.nan)
+    for c in range(n_cells):
+        a, b = counts[c], counts[c + 1]
+        if b > a:
+            v = np.sort(zs[a:b])
+            n = b - a
+            out[c] = 0.5 * (v[(n - 1) // 2] + v[n // 2])
+    return out
+
+
 def _cell_stat(ix, iy, z, shape, stat: str) -> np.ndarray:
     """Per-cell min or median of z over cells (iy, ix) of a raster of `shape`; NaN for empty cells."""
     flat = iy * shape[1] + ix
@@ -116,14 +143,8 @@ def _cell_stat(ix, iy, z, shape, stat: str) -> np.ndarray:
         np.minimum.at(m, flat, z)
         out[np.isfinite(m)] = m[np.isfinite(m)]
         return out.reshape(shape)
-    order = np.lexsort((z, flat))
-    f, zs = flat[order], z[order]
-    starts = np.flatnonzero(np.r_[True, f[1:] != f[:-1]])
-    counts = np.diff(np.r_[starts, len(f)])
-    mid_lo = zs[starts + (counts - 1) // 2]
-    mid_hi = zs[starts + counts // 2]
-    out[f[starts]] = 0.5 * (mid_lo + mid_hi)
-    return out.reshape(shape)
+    return _cell_medians(np.ascontiguousarray(flat, dtype=np.int64), np.ascontiguousarray(z, dtype=np.float64),
+                         shape[0] * shape[1]).reshape(shape)
 
 
 def grid_ground(xyz: np.ndarray, cell_m: float, window_m: float, refine_cell_m: float,

@@ -63,6 +63,45 @@ def _any_within(q, pts, start, lo_x, lo_y, cell, nx, ny, r, r2):
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def _columns(pts, lo_x, lo_y, cell):
+    """The points (N,3) sorted by column (ix * ny + iy of the `cell` grid from (lo_x, lo_y)), then by z
+    within a column; the columns' start offsets (nx * ny + 1,), nx and ny. A counting sort by column and
+    a sort of each column's few heights (the order of equal heights does not matter to the test)."""
+    n = pts.shape[0]
+    ix = np.empty(n, dtype=np.int64)
+    iy = np.empty(n, dtype=np.int64)
+    nx = 0
+    ny = 0
+    for k in range(n):
+        ix[k] = int(np.floor((pts[k, 0] - lo_x) / cell))
+        iy[k] = int(np.floor((pts[k, 1] - lo_y) / cell))
+        nx = max(nx, ix[k] + 1)
+        ny = max(ny, iy[k] + 1)
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for k in range(n):
+        start[ix[k] * ny + iy[k] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    pos = start[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    for k in range(n):
+        c = ix[k] * ny + iy[k]
+        order[pos[c]] = k
+        pos[c] += 1
+    out = np.empty((n, 3))
+    for c in range(nx * ny):
+        a, b = start[c], start[c + 1]
+        seg = order[a:b]
+        zs = np.empty(b - a)
+        for m in range(b - a):
+            zs[m] = pts[seg[m], 2]
+        by_z = np.argsort(zs)
+        for m in range(b - a):
+            out[a + m, :] = pts[seg[by_z[m]], :]
+    return out, start, nx, ny
+
+
 class NearGrid:
     """Points (N,3, m) in xy columns of side `radius_m`, for :meth:`any_within` tests at that radius."""
 
@@ -77,12 +116,7 @@ class NearGrid:
             self.pts, self.start = pts.reshape(0, 3), np.zeros(1, dtype=np.int64)
             return
         self.lo = pts[:, :2].min(0)
-        ij = np.floor((pts[:, :2] - self.lo) / self.radius_m).astype(np.int64)
-        self.nx, self.ny = (int(v) for v in ij.max(0) + 1)
-        col = ij[:, 0] * self.ny + ij[:, 1]
-        order = np.lexsort((pts[:, 2], col))
-        self.pts = pts[order]
-        self.start = np.concatenate([[0], np.cumsum(np.bincount(col, minlength=self.nx * self.ny))]).astype(np.int64)
+        self.pts, self.start, self.nx, self.ny = _columns(pts, float(self.lo[0]), float(self.lo[1]), self.radius_m)
 
     def any_within(self, q: np.ndarray) -> np.ndarray:
         """Boolean (K,): query points q (K,3, m) with a grid point closer than the radius (strictly)."""

@@ -53,6 +53,7 @@ from .proposals import (
     ncc_peaks,
     vote_map,
 )
+from .tasks import run_tasks, submit_tasks
 from .registration import IcpResult, SceneSource, SurfaceTarget, icp_scene_to_model, is_rigid_transform
 from .scoring import (
     CoverageViews,
@@ -129,7 +130,8 @@ class OursClass:
 
     model: the ClassModel; targets: (coarse, fine) ICP targets (the mesh surface sampled at two
     spacings); kernels: BEV kernels of the proposals (`proposals.class_kernels`); tumbled: rotations
-    of the tumbled starts (`tumbled_rotations`; empty when `tumbled_inits` is off); views: the
+    of the tumbled starts (`tumbled_rotations`; empty when `tumbled_inits` is off) and tumbled_extents
+    their `pose_extents`; views: the
     template views thinned to `coverage_voxel_m` with their surface normals (`scoring.CoverageViews`;
     the template->scene fraction of upright poses); grids: the nearest-sample grids (`grid_icp`) of
     the coarse surface (screening and first ICP stage) and of the fine surface (later stages, coarse
@@ -142,19 +144,22 @@ class OursClass:
     tumbled: list
     views: CoverageViews
     grids: tuple[NearestSurfaceGrid, NearestSurfaceGrid] | None = None
+    tumbled_extents: list | None = None
 
 
 def prepare_classes(models: dict[str, ClassModel], p: dict) -> dict[str, OursClass]:
     """The per-class data of variant `ours` (class -> OursClass), built once per detector."""
     out = {}
     for cls, m in models.items():
+        tumbled = tumbled_rotations(m, p) if p["tumbled_inits"] else []
         out[cls] = OursClass(
             model=m,
             targets=(SurfaceTarget(m.coarse_surface, m.coarse_normals), SurfaceTarget(m.surface, m.surface_normals)),
             kernels=class_kernels(m, p["bev_cell_m"], p["bev_yaw_step_deg"]),
-            tumbled=tumbled_rotations(m, p) if p["tumbled_inits"] else [],
+            tumbled=tumbled,
             views=CoverageViews.of(m, view_points(m.views, p["coverage_voxel_m"])),
-            grids=_surface_grids(m, p))
+            grids=_surface_grids(m, p),
+            tumbled_extents=pose_extents(m, tumbled, int(p["tumbled_vertex_stride_n"])))
     return out
 
 
@@ -175,8 +180,9 @@ def _surface_grids(m: ClassModel, p: dict):
 class _State:
     """Shared arrays of one detection run."""
 
-    def __init__(self, xyz, ground, p):
+    def __init__(self, xyz, ground, p, pool=None, all_tree_xy=None):
         self.xyz = xyz
+        self.pool = pool  # worker threads of this run (`tasks.worker_pool`), None: all on the caller's
         self.ground = ground
         mask = ground.hab > p["ground_min_height_m"]
         self.pts = xyz[mask]
@@ -184,7 +190,8 @@ class _State:
         self.seabed_xy = xyz[~mask, :2]
         self.active = np.ones(len(self.pts), dtype=bool)
         self.tree_xy = cKDTree(self.pts[:, :2]) if len(self.pts) else None
-        self.scene = SceneIndex(self.pts, self.active, self.tree_xy, xyz, cKDTree(xyz[:, :2]))
+        self.scene = SceneIndex(self.pts, self.active, self.tree_xy, xyz,
+                                cKDTree(xyz[:, :2]) if all_tree_xy is None else all_tree_xy)
         c = p["bev_cell_m"]
         # Cell-aligned raster origin: a crop of the survey (a tile) sees the same cells as the whole.
         self.x0, self.y0 = (float(np.floor(xyz[:, k].min() / c) * c) for k in (0, 1))
@@ -394,11 +401,11 @@ def _propose_upright(st, classes, p, rnd, accepted, stats):
     """Round proposals: NCC peaks per class on the map of unexplained points (explained cells unknown)."""
     t = time.perf_counter()
     r = _proposal_raster(st, p)
-    out = []
-    for cls, k in classes.items():
-        m, kernels = k.model, k.kernels
+
+    def peaks(k, part):  # the correlation peaks of one class (its FFTs release the GIL)
+        kernels = k.kernels
+        rad = int(round(p["proposal_nms_radius_frac"] * k.model.radius_m / p["bev_cell_m"]))
         best, arg, occ = ncc_maps(r, kernels, p["ground_min_height_m"], p["proposal_data_min_frac"])
-        rad = int(round(p["proposal_nms_radius_frac"] * m.radius_m / p["bev_cell_m"]))
         ii, jj = ncc_peaks(best, occ, p["proposal_ncc_min"], p["proposal_occupancy_min_frac"], rad)
         yaw_of = [kernels[arg[i, j]].yaw_rad for i, j in zip(ii, jj)]
         if rnd > 0:
@@ -407,6 +414,11 @@ def _propose_upright(st, classes, p, rnd, accepted, stats):
             vi, vj = ncc_peaks(vb, np.ones_like(vb), p["proposal_vote_min_frac"], 0.0, rad)
             ii, jj = np.r_[ii, vi], np.r_[jj, vj]
             yaw_of += [kernels[va[i, j]].yaw_rad for i, j in zip(vi, vj)]
+        return best, ii, jj, yaw_of
+
+    out = []
+    for (cls, k), (best, ii, jj, yaw_of) in zip(classes.items(), run_tasks(st.pool, peaks, list(classes.values()))):
+        m = k.model
         centres = r.centre(ii, jj)
         kept = []
         near_accepted = p["proposal_accepted_radius_frac"] * m.radius_m
@@ -435,7 +447,12 @@ def _cap_proposals(props: list, p, rnd: int, stats) -> list:
 
 
 def _near_boxes(accepted, xy, radius):
-    return [a.box for a in accepted if np.hypot(*(a.box[:2] - xy)) < radius + 0.5 * np.hypot(a.box[3], a.box[4])]
+    """Boxes of the accepted objects whose footprint circle comes within `radius` (m) of `xy`."""
+    if not accepted:
+        return []
+    b = np.array([a.box for a in accepted])
+    near = np.hypot(b[:, 0] - xy[0], b[:, 1] - xy[1]) < radius + 0.5 * np.hypot(b[:, 3], b[:, 4])
+    return [a.box for a, ok in zip(accepted, near) if ok]
 
 
 def _occluders(accepted, model, xy, p):
@@ -453,18 +470,18 @@ def _screened_crop(st, cls, m, xy, p, stats, tried: list):
             or st.hab[crop].max() < p["proposal_min_height_frac"] * m.height_m:
         stats["windows_skipped"] += 1
         return None
-    if any(c == cls and n == len(crop) and np.hypot(*(xy - q)) < p["proposal_merge_m"] for c, q, n in tried):
+    n_crop = len(crop)
+    if any(n == n_crop and c == cls and np.hypot(*(xy - q)) < p["proposal_merge_m"] for c, q, n in tried):
         stats["proposals_repeated"] += 1
         return None
     tried.append((cls, xy, len(crop)))
     return crop
 
 
-def _hypotheses_upright(st, classes, proposals, p, rnd, accepted, stats):
-    """Upright hypotheses: coarse ICP of every proposal from its starts (seabed/top-aligned heights x
-    yaws), class competition among nearby proposals on the coarse quality, shifted restarts and fine
-    ICP + scoring for the survivors."""
-    jobs = []
+def _submit_upright(st, classes, proposals, p, rnd, accepted, stats):
+    """Start the coarse ICP of every upright proposal from its starts (seabed/top-aligned heights x
+    yaws) on the run's workers; `_upright_hypotheses` takes it on from there."""
+    tasks = []
     for cls, xy, yaw, _ in proposals:
         k = classes[cls]
         m = k.model
@@ -473,21 +490,39 @@ def _hypotheses_upright(st, classes, proposals, p, rnd, accepted, stats):
             continue
         n_yaw = 1 if m.symmetric else max(1, int(p["n_yaw_init"]))
         yaws = [yaw + i * m.yaw_period_rad / n_yaw for i in range(n_yaw)]
-        job = _Job(st, k, crop, p, f"upright{rnd}", _occluders(accepted, m, xy, p), xy)
-        job.coarse([(rot_z(yw), np.r_[xy, z0]) for z0 in _z_inits(st, m, xy, crop, p) for yw in yaws], p, stats)
-        if job.best is not None:
-            jobs.append(job)
+        starts = [(rot_z(yw), np.r_[xy, z0]) for z0 in _z_inits(st, m, xy, crop, p) for yw in yaws]
+        tasks.append((k, crop, _occluders(accepted, m, xy, p), xy, starts))
+
+    def coarse(task, part):
+        k, crop, occluders, xy, starts = task
+        job = _Job(st, k, crop, p, f"upright{rnd}", occluders, xy)
+        job.coarse(starts, p, part)
+        return job
+
+    return submit_tasks(st.pool, coarse, tasks)
+
+
+def _upright_hypotheses(st, submitted, p, rnd, stats):
+    """Upright hypotheses from the coarse fits of `_submit_upright`: class competition among nearby
+    proposals on the coarse quality, then shifted restarts and fine ICP + scoring for the survivors."""
+    jobs = [j for j in submitted.results(stats) if j.best is not None]
     # Class competition: near one another, proposals far below the best coarse quality are dropped.
     qs = np.array([j.best_q for j in jobs])
     xys = np.array([j.xy for j in jobs]).reshape(-1, 2)
-    hyps = []
+    survivors = []
     for job in jobs:
         near = np.hypot(*(xys - job.xy).T) < p["class_competition_m"]
         if not job.passes(p) or job.best_q < qs[near].max() - p["class_q_margin"]:
             stats["proposals_outcompeted"] += 1
             continue
-        job.shift(p, stats)
-        h = job.finish(st, p, stats)
+        survivors.append(job)
+
+    def finish(job, part):
+        job.shift(p, part)
+        return job.finish(st, p, part)
+
+    hyps = []
+    for job, h in zip(survivors, run_tasks(st.pool, finish, survivors, stats)):
         if h is not None:
             h.round, h.seed_xy = rnd, job.xy
             hyps.append(h)
@@ -562,41 +597,51 @@ def _seeding_points(st, classes, accepted, p) -> np.ndarray:
     return np.flatnonzero(free)
 
 
-def _tumbled_starts(st, m, rots, xy, crop, p, tip: bool = False) -> list:
+def pose_extents(model, rots, stride: int) -> list:
+    """Per rotation R0 (3,3) of `rots`, the extent of every `stride`-th mesh vertex turned by it
+    (canonical frame turned, m): (centre of its bounding box (3,), lowest z, highest z, highest vertex (3,)).
+    What `_tumbled_starts` needs of a pose, independent of where it is tried (built once per class)."""
+    out = []
+    for R0 in rots:
+        v = model.vertices[::stride] @ np.asarray(R0).T
+        out.append((0.5 * (v.min(0) + v.max(0)), float(v[:, 2].min()), float(v[:, 2].max()), v[np.argmax(v[:, 2])]))
+    return out
+
+
+def _tumbled_starts(st, m, rots, xy, crop, p, tip: bool = False, extents=None) -> list:
     """Starts (R0, t0) of the tumbled poses `rots` at seed `xy`: each pose resting on the seabed, centred
     on the seed, and lifted to the crop's top when the crop is taller than the pose by more than
     `top_start_min_lift_m` (it may rest on others). At a tip seed (a height maximum: a raised leg's
     tip, 0.4-0.7 m off the centre of a leaning pile member) with `tumbled_tip_starts`, instead each
     pose with its highest point under the seed at the crop's top. Poses taller than the crop allows are
-    left out."""
+    left out. extents: `pose_extents` of `rots` (with `tumbled_vertex_stride_n`), computed here if None."""
     zg = float(st.ground.z_at(xy[0], xy[1]))
     ztop = float(st.pts[crop, 2].max())
     crop_h = float(st.hab[crop].max())
-    stride = int(p["tumbled_vertex_stride_n"])
+    if extents is None:
+        extents = pose_extents(m, rots, int(p["tumbled_vertex_stride_n"]))
     starts = []
-    for R0 in rots:
-        v = m.vertices[::stride] @ R0.T
-        if crop_h < p["proposal_min_height_frac"] * (v[:, 2].max() - v[:, 2].min()):
+    for R0, (c, z_lo, z_hi, top) in zip(rots, extents):
+        if crop_h < p["proposal_min_height_frac"] * (z_hi - z_lo):
             continue  # the crop is too low for the object in this pose
         if tip and p["tumbled_tip_starts"]:
-            top = v[np.argmax(v[:, 2])]
             starts.append((R0, np.array([xy[0] - top[0], xy[1] - top[1], ztop - top[2]])))
             continue
-        c = 0.5 * (v.min(0) + v.max(0))
-        base = np.array([xy[0] - c[0], xy[1] - c[1], zg - v[:, 2].min()])
+        base = np.array([xy[0] - c[0], xy[1] - c[1], zg - z_lo])
         starts.append((R0, base))
-        lift = ztop - v[:, 2].max() - base[2]
+        lift = ztop - z_hi - base[2]
         if lift > p["top_start_min_lift_m"]:
             starts.append((R0, base + [0.0, 0.0, lift]))
     return starts
 
 
-def _hypotheses_tumbled(st, classes, p, rnd, accepted, stats):
-    """Tumbled-orientation hypotheses on clusters of unexplained points (seeds: `_residual_seeds`)."""
+def _tumbled_tries(st, classes, p, rnd, accepted, stats) -> list:
+    """Tumbled-orientation tries (class, crop, occluders, seed xy, starts) on clusters of unexplained
+    points (seeds: `_residual_seeds`), at most `proposal_max_per_round_n`."""
     idx_act = _seeding_points(st, classes, accepted, p)
     if len(idx_act) == 0:
         return []
-    hyps, tries = [], 0
+    tasks, tries = [], 0
     for grp in clusters(st.pts[idx_act, :2], p["residual_cluster_cell_m"], p["residual_min_points_n"]):
         g = idx_act[grp]
         if float(st.hab[g].max()) < p["residual_min_height_m"]:
@@ -610,24 +655,41 @@ def _hypotheses_tumbled(st, classes, p, rnd, accepted, stats):
                     stats["capped"]["tumbled_rounds"] += 1
                     log.warning("round %d: %d tumbled seed tries; the other seeds are left (proposal_max_per_round_n)",
                                 rnd, tries)
-                    return hyps
+                    return tasks
                 tries += 1
                 crop = _screened_crop(st, cls, m, xy, p, stats, st.tried_tumbled)
                 if crop is None:
                     continue
-                starts = _tumbled_starts(st, m, k.tumbled, xy, crop, p, tip)
+                starts = _tumbled_starts(st, m, k.tumbled, xy, crop, p, tip, k.tumbled_extents)
                 if not starts:
                     stats["windows_skipped"] += 1
                     continue
-                job = _Job(st, k, crop, p, "tumbled", _occluders(accepted, m, xy, p), xy)
-                job.coarse(starts, p, stats, screen_keep=int(p["tumbled_screen_keep_n"]))
-                if not job.passes(p):
-                    continue
-                job.shift(p, stats, p["tumbled_shift_q_min"])
-                h = job.finish(st, p, stats)
-                if h is not None:
-                    h.round, h.seed_xy = rnd, xy
-                    hyps.append(h)
+                tasks.append((k, crop, _occluders(accepted, m, xy, p), xy, starts))
+    return tasks
+
+
+def _submit_tumbled(st, tasks, p):
+    """Start the fits of tumbled tries (`_tumbled_tries`) on the run's workers: screened coarse ICP
+    from the starts, shifted restarts, fine ICP and scoring, one task each (None: declined)."""
+    def fit(task, part):
+        k, crop, occluders, xy, starts = task
+        job = _Job(st, k, crop, p, "tumbled", occluders, xy)
+        job.coarse(starts, p, part, screen_keep=int(p["tumbled_screen_keep_n"]))
+        if not job.passes(p):
+            return None
+        job.shift(p, part, p["tumbled_shift_q_min"])
+        return job.finish(st, p, part)
+
+    return submit_tasks(st.pool, fit, tasks)
+
+
+def _tumbled_hypotheses(tasks, submitted, rnd, stats) -> list:
+    """The hypotheses of the tumbled tries `tasks` whose fits `submitted` holds."""
+    hyps = []
+    for task, h in zip(tasks, submitted.results(stats)):
+        if h is not None:
+            h.round, h.seed_xy = rnd, task[3]
+            hyps.append(h)
     return hyps
 
 
@@ -710,6 +772,7 @@ def _update_pending(st, classes, pending, accepted, gone, changed, p, stats, rms
     most `refits_max_n` times each) unless more than `refit_inliers_lost_max_frac` of their inliers, else
     re-scored. A hypothesis that lost that much of its inliers was another explanation of the object
     just accepted, not of a neighbour: what is left of its crop is proposed again in the next round."""
+    refit, rest = [], []
     for j, o in enumerate(pending):
         if len(o.cand) == 0:
             continue
@@ -718,15 +781,28 @@ def _update_pending(st, classes, pending, accepted, gone, changed, p, stats, rms
         lost = gone[o.cand].mean()
         if lost > p["refit_lost_min_frac"] and o.n_refits < p["refits_max_n"] \
                 and _inliers_lost(o, gone) <= p["refit_inliers_lost_max_frac"]:
-            k = classes[o.cls]
-            crop = _crop(st, o.t[:2], k.model.radius_m + p["crop_margin_m"])
-            ref = _fit(st, k, o.R, o.t, crop, p, stats, _occluders(accepted, k.model, o.t[:2], p), kind="refit") \
-                if len(crop) >= p["icp_min_points_n"] else None
-            if ref is not None:
-                ref.round, ref.seed_xy, ref.n_refits = o.round, o.seed_xy, o.n_refits + 1
-                pending[j] = ref
-                stats["refits"] += 1
-                continue
+            refit.append(j)
+        else:
+            rest.append(j)
+
+    def fit(j, part):
+        o = pending[j]
+        k = classes[o.cls]
+        crop = _crop(st, o.t[:2], k.model.radius_m + p["crop_margin_m"])
+        if len(crop) < p["icp_min_points_n"]:
+            return None
+        return _fit(st, k, o.R, o.t, crop, p, part, _occluders(accepted, k.model, o.t[:2], p), kind="refit")
+
+    for j, ref in zip(refit, run_tasks(st.pool, fit, refit, stats)):
+        if ref is None:
+            rest.append(j)
+            continue
+        o = pending[j]
+        ref.round, ref.seed_xy, ref.n_refits = o.round, o.seed_xy, o.n_refits + 1
+        pending[j] = ref
+        stats["refits"] += 1
+    for j in rest:  # re-scoring is cheap: in any order
+        o = pending[j]
         rescore(o, st.active, rmse_max[o.cls], p)
 
 
@@ -797,13 +873,17 @@ def _output(st, accepted, p) -> list:
     return out
 
 
-def detect_ours(xyz: np.ndarray, classes: dict[str, OursClass], p: dict, stats: dict) -> list:
+def detect_ours(xyz: np.ndarray, classes: dict[str, OursClass], p: dict, stats: dict, pool=None) -> list:
     """Run the `ours` pipeline on local-frame points (N,3, m) with the per-class data of
     `prepare_classes`; returns scored Hypothesis objects (accepted ones first, then down-weighted
-    others) with `accepted` set on each, and adds its counts and per-stage seconds to `stats`."""
+    others) with `accepted` set on each, and adds its counts and per-stage seconds to `stats`.
+    pool: worker threads for the independent fits of a round (`tasks.worker_pool`); the result is the
+    same with or without."""
     t = time.perf_counter()
+    # The tree over every point does not depend on the seabed: built on a worker meanwhile (it releases the GIL).
+    all_tree = pool.submit(cKDTree, xyz[:, :2]) if pool is not None else None
     ground = seabed(xyz, p)
-    st = _State(xyz, ground, p)
+    st = _State(xyz, ground, p, pool, None if all_tree is None else all_tree.result())
     stats["replaced"] = 0
     stats["proposals_repeated"] = 0
     stats["proposals_outcompeted"] = 0
@@ -817,9 +897,12 @@ def detect_ours(xyz: np.ndarray, classes: dict[str, OursClass], p: dict, stats: 
     for rnd in range(int(p["proposal_max_rounds_n"])):
         t = time.perf_counter()
         props = _cap_proposals(_propose_upright(st, classes, p, rnd, accepted, stats), p, rnd, stats)
-        pending = _hypotheses_upright(st, classes, props, p, rnd, accepted, stats)
-        if rnd > 0 and p["tumbled_inits"]:
-            pending += _hypotheses_tumbled(st, classes, p, rnd, accepted, stats)
+        # Every fit of a round depends only on the state at its start: the tumbled tries are prepared
+        # and queued while the workers run the upright coarse fits (same hypotheses, in the same order).
+        upright = _submit_upright(st, classes, props, p, rnd, accepted, stats)
+        tumbled = _tumbled_tries(st, classes, p, rnd, accepted, stats) if rnd > 0 and p["tumbled_inits"] else []
+        tumbled_fits = _submit_tumbled(st, tumbled, p)
+        pending = _upright_hypotheses(st, upright, p, rnd, stats) + _tumbled_hypotheses(tumbled, tumbled_fits, rnd, stats)
         stats["hypotheses"] += len(pending)
         n_pending = len(pending)
         new = _select(st, classes, pending, accepted, p, stats)

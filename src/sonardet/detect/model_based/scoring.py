@@ -36,14 +36,15 @@ coordinates into it. Definitions (per hypothesis):
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage as ndi
 from scipy import sparse
 from scipy.spatial import cKDTree
 
 from ...geometry import matrix_to_quat, points_in_box
+from ...jit import numba
 from ...objects.catalog import canonical_box
 from .near import NearGrid
 
@@ -144,6 +145,23 @@ def view_directions(incidences_deg, n_azimuth: int) -> np.ndarray:
     return np.asarray(out)
 
 
+@functools.lru_cache(maxsize=16)
+def _view_bases(directions_bytes: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors (K,3) u and w spanning the ray-grid plane of each viewing direction d (K,3, given as
+    the bytes of a float64 array): u = d x (y, or x for a near-y d), normalised, w = d x u. Cached:
+    the directions are the same for every hypothesis."""
+    dirs = np.frombuffer(directions_bytes, dtype=np.float64).reshape(-1, 3)
+    us, ws = [], []
+    for d in dirs:
+        u = np.cross(d, [0.0, 1.0, 0.0] if abs(d[1]) < 0.9 else [1.0, 0.0, 0.0])
+        u /= np.linalg.norm(u)
+        us.append(u)
+        ws.append(np.cross(d, u))
+    us, ws = np.array(us).reshape(-1, 3), np.array(ws).reshape(-1, 3)
+    us.flags.writeable = ws.flags.writeable = False
+    return us, ws
+
+
 def virtual_views(model, R: np.ndarray, t: np.ndarray, cell_m: float, directions: np.ndarray) -> list:
     """Point sets (scene frame, m) of the posed mesh as seen along each of `directions` (K,3).
 
@@ -158,18 +176,17 @@ def virtual_views(model, R: np.ndarray, t: np.ndarray, cell_m: float, directions
     r = 0.5 * float(np.linalg.norm(v.max(0) - v.min(0))) + cell_m
     g = np.arange(-r, r + 1e-9, cell_m)
     gu, gv = (x.reshape(-1) for x in np.meshgrid(g, g))
+    us, ws = _view_bases(np.ascontiguousarray(directions, dtype=np.float64).tobytes())
+    # Only rays that pass through the mesh's shadow on a view's (u, w) plane (its vertices' extent
+    # there, a millimetre wider) can hit it: the others are left out, the rays kept are those of the
+    # full grid, in its order, so the hits are the same.
+    pu, pw = (v - c) @ us.T, (v - c) @ ws.T
+    lo_u, hi_u = pu.min(0) - 1e-3, pu.max(0) + 1e-3
+    lo_w, hi_w = pw.min(0) - 1e-3, pw.max(0) + 1e-3
     origins = []
-    for d in directions:
-        u = np.cross(d, [0.0, 1.0, 0.0] if abs(d[1]) < 0.9 else [1.0, 0.0, 0.0])
-        u /= np.linalg.norm(u)
-        w = np.cross(d, u)
-        # Only rays that pass through the mesh's shadow on the (u, w) plane (its vertices' extent there,
-        # a millimetre wider) can hit it: the others are left out, the rays kept are those of the
-        # full grid, in its order, so the hits are the same.
-        pu, pw = (v - c) @ u, (v - c) @ w
-        keep = ((gu >= pu.min() - 1e-3) & (gu <= pu.max() + 1e-3) & (gv >= pw.min() - 1e-3)
-                & (gv <= pw.max() + 1e-3))
-        origins.append(c - 2.0 * r * d + gu[keep, None] * u + gv[keep, None] * w)
+    for k, d in enumerate(directions):
+        keep = (gu >= lo_u[k]) & (gu <= hi_u[k]) & (gv >= lo_w[k]) & (gv <= hi_w[k])
+        origins.append(c - 2.0 * r * d + gu[keep, None] * us[k] + gv[keep, None] * ws[k])
     counts = [len(o) for o in origins]
     # One cast for every view (the rays are independent): the per-call cost of the ray caster is paid once.
     dirs = np.repeat(np.asarray(directions, dtype=np.float64), counts, axis=0)
@@ -222,6 +239,37 @@ def _asked(points: np.ndarray, occluders, params: dict) -> np.ndarray:
     return ~hidden_under(points, occluders, params["hidden_footprint_margin_m"], params["hidden_above_bottom_m"])
 
 
+@numba.njit(cache=True, nogil=True)
+def _shadow_tops(pts, lo_x, lo_y, cell):
+    """Highest z of points (N,3) per `cell` cell from (lo_x, lo_y) (shape: the largest cell index + 2 per
+    axis, -inf where empty), then the highest of each cell's 3 x 3 neighbourhood: one compiled pass
+    each (the same values as np.maximum.at and a 3 x 3 maximum filter, without holding the GIL)."""
+    n = pts.shape[0]
+    ii = np.empty(n, dtype=np.int64)
+    jj = np.empty(n, dtype=np.int64)
+    n0 = 0
+    n1 = 0
+    for k in range(n):
+        ii[k] = int(np.floor((pts[k, 0] - lo_x) / cell))
+        jj[k] = int(np.floor((pts[k, 1] - lo_y) / cell))
+        n0 = max(n0, ii[k] + 2)
+        n1 = max(n1, jj[k] + 2)
+    top = np.full((n0, n1), -np.inf)
+    for k in range(n):
+        if pts[k, 2] > top[ii[k], jj[k]]:
+            top[ii[k], jj[k]] = pts[k, 2]
+    out = np.full((n0, n1), -np.inf)
+    for i in range(n0):
+        for j in range(n1):
+            m = -np.inf
+            for a in range(max(i - 1, 0), min(i + 2, n0)):
+                for b in range(max(j - 1, 0), min(j + 2, n1)):
+                    if top[a, b] > m:
+                        m = top[a, b]
+            out[i, j] = m
+    return out
+
+
 class ShadowMap:
     """Highest scene point (m) per `cell_m` xy cell around a hypothesis, for telling which of its template
     points the sonar could not see because something observed lies above them (a neighbour in a pile,
@@ -232,11 +280,8 @@ class ShadowMap:
     def __init__(self, pts: np.ndarray, cell_m: float, margin_m: float):
         self.cell, self.margin = float(cell_m), float(margin_m)
         self.lo = pts[:, :2].min(0) - self.cell
-        ij = np.floor((pts[:, :2] - self.lo) / self.cell).astype(np.int64)
-        shape = ij.max(0) + 2
-        top = np.full(shape, -np.inf)
-        np.maximum.at(top, (ij[:, 0], ij[:, 1]), pts[:, 2])
-        self.top = ndi.maximum_filter(top, size=3, mode="constant", cval=-np.inf)
+        self.top = _shadow_tops(np.ascontiguousarray(pts, dtype=np.float64), float(self.lo[0]), float(self.lo[1]),
+                                self.cell)
 
     def shadowed(self, pts: np.ndarray) -> np.ndarray:
         """Boolean (K,): points (K,3, m) lying more than margin_m below the highest scene point near them."""

@@ -1,0 +1,108 @@
+"""Independent pieces of one `ours` detection run on worker threads, in input order.
+
+Within a round the hypotheses of different proposals do not depend on one another: each reads the
+run's shared state (candidate points, KD-trees, which points are explained) and writes only its own
+hypothesis. Their heavy parts release the GIL (the compiled grid ICP, KD-tree ball queries, Open3D
+ray casts, NumPy on thousands of points), so two threads overlap a good part of them.
+
+The result does not depend on the thread count: a piece gets its own statistics dict (`task_stats`),
+the results come back in input order and the statistics are merged in that order (`merge_stats`).
+Stage seconds of pieces run on threads are summed over the threads (they can add up to more than the
+wall time of the stage). The pool is made per detector call (`worker_pool`), so no thread outlives a
+call: a process that forks tile workers afterwards has none.
+
+Written here because no library maps over a thread pool with per-task counters merged in order;
+`concurrent.futures` gives the pool.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from concurrent.futures import ThreadPoolExecutor
+
+
+def task_stats() -> dict:
+    """An empty statistics dict for one piece: the counters the hypothesis steps add to."""
+    return {"icp_runs": 0, "icp_runs_by_kind": {}, "icp_declined": 0, "refits": 0,
+            "seconds": {"proposals": 0.0, "registration": 0.0, "scoring": 0.0}}
+
+
+def merge_stats(stats: dict, part: dict) -> None:
+    """Add a piece's statistics (`task_stats`) to the run's `stats` (seconds in s)."""
+    for key in ("icp_runs", "icp_declined", "refits"):
+        stats[key] += part[key]
+    for kind, n in part["icp_runs_by_kind"].items():
+        stats["icp_runs_by_kind"][kind] = stats["icp_runs_by_kind"].get(kind, 0) + n
+    for stage, s in part["seconds"].items():
+        stats["seconds"][stage] = stats["seconds"].get(stage, 0.0) + s
+
+
+class Submitted:
+    """Pieces handed to the pool by `submit_tasks`; `results` waits for them."""
+
+    def __init__(self, futures: list, parts: list):
+        self._futures, self._parts = futures, parts
+
+    def results(self, stats: dict | None = None) -> list:
+        """The pieces' results in input order; each piece's statistics are merged into `stats` (when
+        given) in that order. An exception of a piece is raised here (after the pieces before it were
+        merged)."""
+        out = []
+        for fut, part in zip(self._futures, self._parts):
+            out.append(fut.result())
+            if stats is not None:
+                merge_stats(stats, part)
+        return out
+
+
+class _Done:
+    """A piece already run on the caller's thread (no pool): a finished future."""
+
+    def __init__(self, fn, item, part):
+        self._value = fn(item, part)
+
+    def result(self):
+        return self._value
+
+
+def submit_tasks(pool: ThreadPoolExecutor | None, fn, items: list) -> Submitted:
+    """Start fn(item, piece_stats) for each item on `pool`'s threads (or run them here, in order, when
+    there is no pool); the caller may prepare other work meanwhile and then collect with
+    `Submitted.results`."""
+    parts = [task_stats() for _ in items]
+    if pool is None:
+        return Submitted([_Done(fn, item, part) for item, part in zip(items, parts)], parts)
+    return Submitted([pool.submit(fn, item, part) for item, part in zip(items, parts)], parts)
+
+
+def run_tasks(pool: ThreadPoolExecutor | None, fn, items: list, stats: dict | None = None) -> list:
+    """[fn(item, piece_stats) for item in items], on `pool`'s threads when there is one; each piece's
+    statistics are merged into `stats` (when given) in input order (`submit_tasks`, then `results`)."""
+    return submit_tasks(pool if len(items) > 1 else None, fn, items).results(stats)
+
+
+#: Upper bound of `worker_pool`'s threads in this process (None: none); a tile worker process sets 1.
+_THREAD_LIMIT: int | None = None
+
+
+def limit_threads(n: int | None) -> None:
+    """At most `n` worker threads per detection call in this process from now on (None: no bound). The
+    survey's tile worker processes set 1, so `jobs` processes use `jobs` cores."""
+    global _THREAD_LIMIT
+    _THREAD_LIMIT = None if n is None else max(1, int(n))
+
+
+@contextlib.contextmanager
+def worker_pool(threads: int):
+    """A thread pool of `threads` workers (at most the `limit_threads` bound) for one detection call
+    (None for one thread), shut down on exit."""
+    threads = int(threads)
+    if threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    if _THREAD_LIMIT is not None:
+        threads = min(threads, _THREAD_LIMIT)
+    if threads == 1:
+        yield None
+        return
+    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="sonardet-detect") as pool:
+        yield pool
