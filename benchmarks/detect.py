@@ -73,14 +73,15 @@ def main():
     classes, objects, templates = read_inputs(results)
     params = {"ours": json.loads(args.params_ours), "paper": json.loads(args.params_paper)}
     print(f"{len(ids)} scene(s) of split '{args.split}', classes {classes}, "
-          f"{os.cpu_count()} CPU(s) visible, affinity {len(os.sched_getaffinity(0))} core(s)")
+          f"{os.cpu_count()} CPU(s) visible, affinity {len(os.sched_getaffinity(0))} core(s), "
+          f"{args.threads} worker thread(s) per detection")
     gt = {}
     points = {}
     for sid in ids:
         meta = json.loads((results / "scenes" / f"{sid}.json").read_text())
         gt[sid] = [{"cls": o["cls"], "box": o["box"], "visible": o.get("visible", True)} for o in meta["objects"]]
         points[sid] = read_scene_points(results / "scenes" / f"{sid}.npz")["xyz"]
-    out = {"scenes": ids, "variants": {}}
+    out = {"scenes": ids, "threads": args.threads, "variants": {}}
     for variant in args.variants.split(","):
         rows, dets = [], {}
         detector = ModelBasedDetector(templates, objects, params[variant], variant, threads=args.threads)  # models built once

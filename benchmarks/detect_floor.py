@@ -223,6 +223,8 @@ def main():
     ap.add_argument("--scenes", type=int, default=5, help="number of scenes of the split (0: all)")
     ap.add_argument("--ids", default=None, help="comma-separated scene ids instead of the split file")
     ap.add_argument("--variant", default="ours", choices=["ours", "paper"])
+    ap.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)),
+                    help="worker threads of one detection call (default: the cores this process may use)")
     ap.add_argument("--json", default=None, help="write all numbers to this JSON file")
     ap.add_argument("--object-counts", default=None,
                     help="comma-separated objects per scene for part 3 (e.g. 1,25,50,100,150): scenes made for it")
@@ -235,14 +237,15 @@ def main():
     parse_counts(args.object_counts)  # a bad flag fails before anything is built
     classes, objects, templates = read_inputs(results)
     t = time.perf_counter()
-    detector = ModelBasedDetector(templates, objects, {}, args.variant)
+    detector = ModelBasedDetector(templates, objects, {}, args.variant, threads=args.threads)
     build = time.perf_counter() - t
     v = args.variant
     print(f"[{v}] {len(ids)} scene(s) ({'--ids' if args.ids else 'split ' + args.split}), classes {classes}; "
-          f"{os.cpu_count()} CPU(s) visible, affinity {len(os.sched_getaffinity(0))} core(s); "
-          f"detector built in {build:.2f} s (not timed below); {load()}", flush=True)
+          f"{os.cpu_count()} CPU(s) visible, affinity {len(os.sched_getaffinity(0))} core(s), "
+          f"{args.threads} worker thread(s) per detection; detector built in {build:.2f} s (not timed below); {load()}", flush=True)
     out = {"variant": v, "split": None if args.ids else args.split, "scenes": ids, "classes": classes,
-           "cpu_count": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)), "build_seconds": build,
+           "cpu_count": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)), "threads": args.threads,
+           "build_seconds": build,
            "loadavg_start": loadavg(), "per_scene": [], "soundings_scaling": {}, "objects_scaling": {}}
 
     # Warm-up (untimed): the first detector call pays one-off costs (lazy imports, allocator, caches).
