@@ -1,11 +1,14 @@
 """The NCC proposal maps and the vote maps reuse each raster's and kernel's spectrum
-(proposals._Correlator): their outputs must equal, to the bit, the same maps computed with one scipy
-fftconvolve per pair (`_corr`)."""
+(proposals.Correlator), also when one correlator serves every class of a round: their outputs must
+equal, to the bit, the same maps computed with one scipy fftconvolve per pair (`_corr`)."""
+
+import pytest
 
 import numpy as np
 from scipy.signal import fftconvolve
 
 from sonardet.detect.model_based.proposals import (
+    Correlator,
     Kernel,
     Raster,
     ncc_maps,
@@ -86,3 +89,23 @@ def test_vote_maps_equal_the_per_pair_fftconvolve_to_the_bit():
             want_best[better], want_arg[better] = v[better], k
         assert np.array_equal(best, want_best) and np.array_equal(arg, want_arg)
         assert len(set(arg.ravel())) > 1  # the kernels compete: a check that can fail
+
+
+def test_one_correlator_for_every_class_of_a_round_gives_the_same_maps():
+    """The classes of a round share one Correlator (the raster's spectra computed once, for kernels of
+    different sizes): each class's NCC and vote maps equal those of its own correlator, to the bit;
+    a correlator refuses another raster."""
+    rng = np.random.default_rng(5)
+    h = rng.uniform(-0.1, 2.0, (140, 160))
+    h[rng.random(h.shape) < 0.2] = np.nan
+    r = Raster(h, 0.0, 0.0, 0.1)
+    classes = [_kernels(rng, 23, 3), _kernels(rng, 31, 1), _kernels(rng, 33, 2)]
+    shared = Correlator(r)
+    for kernels in classes:
+        for g, w in zip(ncc_maps(r, kernels, 0.15, 0.5, shared), _reference(r, kernels, 0.15, 0.5)):
+            assert np.array_equal(g, w)
+        for g, w in zip(vote_map(r, kernels, 0.15, shared), vote_map(r, kernels, 0.15)):
+            assert np.array_equal(g, w)
+    assert len(shared.padded_shapes([k[0].support.shape for k in classes])) >= 1
+    with pytest.raises(ValueError, match="another raster"):
+        ncc_maps(Raster(h.copy(), 0.0, 0.0, 0.1), classes[0], 0.15, 0.5, shared)

@@ -64,11 +64,17 @@ def _any_within(q, pts, start, lo_x, lo_y, cell, nx, ny, r, r2):
 
 
 @numba.njit(cache=True, nogil=True)
-def _columns(pts, lo_x, lo_y, cell):
-    """The points (N,3) sorted by column (ix * ny + iy of the `cell` grid from (lo_x, lo_y)), then by z
-    within a column; the columns' start offsets (nx * ny + 1,), nx and ny. A counting sort by column and
-    a sort of each column's few heights (the order of equal heights does not matter to the test)."""
+def _columns(pts, cell):
+    """The points (N,3, N > 0) sorted by column (ix * ny + iy of the `cell` grid from their smallest x
+    and y, lo_x and lo_y), then by z within a column; the columns' start offsets (nx * ny + 1,), nx,
+    ny, lo_x and lo_y. A counting sort by column and a sort of each column's few heights (the order of
+    equal heights does not matter to the test)."""
     n = pts.shape[0]
+    lo_x = pts[0, 0]
+    lo_y = pts[0, 1]
+    for k in range(1, n):
+        lo_x = min(lo_x, pts[k, 0])
+        lo_y = min(lo_y, pts[k, 1])
     ix = np.empty(n, dtype=np.int64)
     iy = np.empty(n, dtype=np.int64)
     nx = 0
@@ -99,7 +105,7 @@ def _columns(pts, lo_x, lo_y, cell):
         by_z = np.argsort(zs)
         for m in range(b - a):
             out[a + m, :] = pts[seg[by_z[m]], :]
-    return out, start, nx, ny
+    return out, start, nx, ny, lo_x, lo_y
 
 
 class NearGrid:
@@ -115,8 +121,8 @@ class NearGrid:
             self.nx = self.ny = 0
             self.pts, self.start = pts.reshape(0, 3), np.zeros(1, dtype=np.int64)
             return
-        self.lo = pts[:, :2].min(0)
-        self.pts, self.start, self.nx, self.ny = _columns(pts, float(self.lo[0]), float(self.lo[1]), self.radius_m)
+        self.pts, self.start, self.nx, self.ny, lo_x, lo_y = _columns(pts, self.radius_m)
+        self.lo = np.array([lo_x, lo_y])
 
     def any_within(self, q: np.ndarray) -> np.ndarray:
         """Boolean (K,): query points q (K,3, m) with a grid point closer than the radius (strictly)."""

@@ -46,6 +46,7 @@ from .grid_icp import NearestSurfaceGrid, icp_point_to_plane_starts
 from .models import NEAR_SPACINGS, ClassModel, rot_x, rot_z
 from .params import per_class
 from .proposals import (
+    Correlator,
     class_kernels,
     clusters,
     height_raster,
@@ -401,16 +402,23 @@ def _propose_upright(st, classes, p, rnd, accepted, stats):
     """Round proposals: NCC peaks per class on the map of unexplained points (explained cells unknown)."""
     t = time.perf_counter()
     r = _proposal_raster(st, p)
+    occ_min = p["ground_min_height_m"]
+    # One correlator for the round: the raster's spectra are shared by the classes, computed first
+    # (one task each: their FFTs release the GIL).
+    corr = Correlator(r)
+    names = ("d", "f", "ff", "occ") + (("vocc",) if rnd > 0 else ())
+    shapes = corr.padded_shapes([k.kernels[0].support.shape for k in classes.values()]).values()
+    run_tasks(st.pool, lambda item, part: corr.raster_spectrum(*item, occ_min), [(n, ks) for n in names for ks in shapes])
 
-    def peaks(k, part):  # the correlation peaks of one class (its FFTs release the GIL)
+    def peaks(k, part):  # the correlation peaks of one class
         kernels = k.kernels
         rad = int(round(p["proposal_nms_radius_frac"] * k.model.radius_m / p["bev_cell_m"]))
-        best, arg, occ = ncc_maps(r, kernels, p["ground_min_height_m"], p["proposal_data_min_frac"])
+        best, arg, occ = ncc_maps(r, kernels, occ_min, p["proposal_data_min_frac"], corr)
         ii, jj = ncc_peaks(best, occ, p["proposal_ncc_min"], p["proposal_occupancy_min_frac"], rad)
         yaw_of = [kernels[arg[i, j]].yaw_rad for i, j in zip(ii, jj)]
         if rnd > 0:
             # Partly hidden objects: plain occupancy votes of the unexplained points.
-            vb, va = vote_map(r, kernels, p["ground_min_height_m"])
+            vb, va = vote_map(r, kernels, occ_min, corr)
             vi, vj = ncc_peaks(vb, np.ones_like(vb), p["proposal_vote_min_frac"], 0.0, rad)
             ii, jj = np.r_[ii, vi], np.r_[jj, vj]
             yaw_of += [kernels[va[i, j]].yaw_rad for i, j in zip(vi, vj)]

@@ -58,17 +58,18 @@ def height_raster(xy: np.ndarray, hab: np.ndarray, cell_m: float, x0: float, y0:
     return r
 
 
-def vote_map(r: Raster, kernels: list, occupied_min_m: float):
+def vote_map(r: Raster, kernels: list, occupied_min_m: float, c: Correlator | None = None):
     """Share of each kernel's footprint (cells the class's top surface covers) that holds points above
     `occupied_min_m`, best over the kernels, with the index of the best kernel. A plain occupancy
-    correlation (Hough-like): partial objects (a ring half under another) still peak at their centre."""
-    occ = (np.nan_to_num(r.h, nan=0.0) > occupied_min_m).astype(np.float64)
+    correlation (Hough-like): partial objects (a ring half under another) still peak at their centre.
+    c: a `Correlator` of r shared with other calls on the same raster (its spectra are reused)."""
+    c = Correlator(r) if c is None else c.check(r)
     best = np.full(r.h.shape, -1.0)
     arg = np.zeros(r.h.shape, dtype=np.int64)
-    c = _Correlator(r.h.shape)  # the raster's spectrum once per kernel shape
     for k, ker in enumerate(kernels):
-        fp = (ker.height > occupied_min_m).astype(np.float64)
-        v = c.corr(c.raster("occ", occ, fp.shape), c.kernel(fp), fp.shape) / max(fp.sum(), 1.0)
+        ks = ker.height.shape
+        v = c.corr(c.raster_spectrum("vocc", ks, occupied_min_m), ker.footprint_spectrum(c, occupied_min_m), ks) \
+            / max(ker.footprint_cells(occupied_min_m), 1.0)
         better = v > best
         best[better] = v[better]
         arg[better] = k
@@ -83,18 +84,39 @@ class Kernel:
     yaw_rad: float
     height: np.ndarray
     support: np.ndarray
-    #: Spectra of the height map and its square for the last padded shape used (a scene's rounds
-    #: share one raster shape): {"fshape": ..., "height": ..., "height2": ...}; filled by ncc_maps.
+    #: Spectra for the last padded shape used (a scene's rounds, and scenes of one size, share one
+    #: raster shape): {"fshape": ..., "height": ..., "height2": ..., "support": ..., ("footprint", m): ...};
+    #: filled by ncc_maps and vote_map. A kernel is used by one thread at a time (its class's task).
     spectra: dict = field(default_factory=dict, repr=False, compare=False)
 
-    def height_spectra(self, c: _Correlator):
-        """The spectra of `height` and `height`**2 for the correlator's padded shape (cached)."""
+    def _spectrum(self, c: Correlator, key, make):
         _, fshape = c._fshape(self.height.shape)
         if self.spectra.get("fshape") != fshape:
             self.spectra.clear()
-            self.spectra.update(fshape=fshape, height=c.kernel(self.height),
-                                height2=c.kernel(self.height * self.height))
-        return self.spectra["height"], self.spectra["height2"]
+            self.spectra["fshape"] = fshape
+        if key not in self.spectra:
+            self.spectra[key] = make()
+        return self.spectra[key]
+
+    def height_spectra(self, c: Correlator):
+        """The spectra of `height` and `height`**2 for the correlator's padded shape (cached)."""
+        return (self._spectrum(c, "height", lambda: c.kernel(self.height)),
+                self._spectrum(c, "height2", lambda: c.kernel(self.height * self.height)))
+
+    def support_spectrum(self, c: Correlator):
+        """The spectrum of `support` for the correlator's padded shape (cached)."""
+        return self._spectrum(c, "support", lambda: c.kernel(self.support))
+
+    def footprint_cells(self, occupied_min_m: float) -> np.float64:
+        """Cells of the footprint: where the top surface is higher than `occupied_min_m` (m). A NumPy
+        float64, as the sum of the float footprint was: dividing a float32 map by it gives float64."""
+        return (self.height > occupied_min_m).astype(np.float64).sum()
+
+    def footprint_spectrum(self, c: Correlator, occupied_min_m: float):
+        """The spectrum of the footprint (1 where the top surface is higher than `occupied_min_m`) for the
+        correlator's padded shape (cached)."""
+        return self._spectrum(c, ("footprint", float(occupied_min_m)),
+                              lambda: c.kernel((self.height > occupied_min_m).astype(np.float64)))
 
 
 def class_kernels(model, cell_m: float, yaw_step_deg: float) -> list[Kernel]:
@@ -113,7 +135,7 @@ def class_kernels(model, cell_m: float, yaw_step_deg: float) -> list[Kernel]:
     return out
 
 
-class _Correlator:
+class Correlator:
     """Correlations ('same' size, float32: twice as fast as float64, and the sums involved are of a
     few thousand cells of heights below 10 m) of rasters of one shape with kernels, in the frequency
     domain.
@@ -127,21 +149,45 @@ class _Correlator:
     0.4 s that import costs.
     """
 
-    def __init__(self, shape: tuple[int, int]):
-        self.shape = tuple(int(n) for n in shape)
+    def __init__(self, r: Raster):
+        self.r = r
+        self.shape = tuple(int(n) for n in r.h.shape)
         self._spectra = {}
+        self._rasters = {}
+
+    def check(self, r: Raster) -> Correlator:
+        """Self, after checking that it was made for raster `r` (its cached spectra are of r)."""
+        if r is not self.r:
+            raise ValueError("this Correlator was made for another raster: make one per raster")
+        return self
+
+    def rasters(self, occupied_min_m: float) -> dict:
+        """The rasters correlated (`ncc_rasters`: 'd', 'f', 'occ', with 'ff' = f * f; 'vocc': `vote_map`'s
+        occupancy), computed once per `occupied_min_m`."""
+        key = float(occupied_min_m)
+        if key not in self._rasters:
+            d, f, occ = ncc_rasters(self.r, occupied_min_m)
+            vocc = (np.nan_to_num(self.r.h, nan=0.0) > occupied_min_m).astype(np.float64)
+            self._rasters[key] = {"d": d, "f": f, "ff": f * f, "occ": occ, "vocc": vocc}
+        return self._rasters[key]
+
+    def raster_spectrum(self, name: str, kshape, occupied_min_m: float):
+        """The spectrum of raster `name` of `rasters(occupied_min_m)` for kernels of `kshape` (cached per
+        padded shape). Several threads may ask at once: the first ones compute it, all get the same."""
+        _, fshape = self._fshape(kshape)
+        key = (name, fshape, float(occupied_min_m))
+        if key not in self._spectra:
+            a = self.rasters(occupied_min_m)[name]
+            self._spectra[key] = sp_fft.rfftn(a.astype(np.float32, copy=False), fshape, axes=(0, 1))
+        return self._spectra[key]
+
+    def padded_shapes(self, kshapes) -> dict:
+        """One kernel shape per distinct padded shape of `kshapes` (padded shape -> kernel shape)."""
+        return {self._fshape(ks)[1]: ks for ks in kshapes}
 
     def _fshape(self, kshape) -> tuple[tuple[int, ...], tuple[int, ...]]:
         full = tuple(a + b - 1 for a, b in zip(self.shape, kshape))
         return full, tuple(sp_fft.next_fast_len(n, True) for n in full)
-
-    def raster(self, name: str, a: np.ndarray, kshape):
-        """The spectrum of raster `a` (cached under `name` per padded shape) for kernels of `kshape`."""
-        _, fshape = self._fshape(kshape)
-        key = (name, fshape)
-        if key not in self._spectra:
-            self._spectra[key] = sp_fft.rfftn(a.astype(np.float32, copy=False), fshape, axes=(0, 1))
-        return self._spectra[key]
 
     def kernel(self, k: np.ndarray):
         """The spectrum of kernel `k`, flipped as a correlation needs."""
@@ -164,28 +210,29 @@ def ncc_rasters(r: Raster, occupied_min_m: float):
     return d, f, (f > occupied_min_m).astype(np.float64)
 
 
-def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float, min_data_frac: float):
+def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float, min_data_frac: float,
+             c: Correlator | None = None):
     """Masked normalised cross-correlation (Padfield 2012) of the height raster with each kernel.
 
     Cells without data (NaN: sonar shadow, or hidden under an accepted object) are left out of the sums;
     a cell's NCC counts (else -1) only where at least `min_data_frac` of the kernel's support holds data.
     Returns (best NCC per cell, index of the best kernel per cell, share of the support's cells with
-    data that hold points above `occupied_min_m`).
+    data that hold points above `occupied_min_m`). c: a `Correlator` of r shared with other calls on
+    the same raster (the classes of a round: the raster spectra are computed once).
     """
-    d, f, occ = ncc_rasters(r, occupied_min_m)
+    c = Correlator(r) if c is None else c.check(r)
     best = np.full(r.h.shape, -1.0)
     arg = np.zeros(r.h.shape, dtype=np.int64)
     occ_frac = None
     cache = {}
-    c = _Correlator(r.h.shape)
     for k, ker in enumerate(kernels):
         ks = ker.support.shape
-        sd, sf_ = c.raster("d", d, ks), c.raster("f", f, ks)
+        sd, sf_ = c.raster_spectrum("d", ks, occupied_min_m), c.raster_spectrum("f", ks, occupied_min_m)
         if ks not in cache:
-            m = c.kernel(ker.support)
+            m = ker.support_spectrum(c)
             n = np.maximum(c.corr(sd, m, ks), 1.0)
-            cache[ks] = (n, c.corr(sf_, m, ks), c.corr(c.raster("ff", f * f, ks), m, ks),
-                         c.corr(c.raster("occ", occ, ks), m, ks) / n)
+            cache[ks] = (n, c.corr(sf_, m, ks), c.corr(c.raster_spectrum("ff", ks, occupied_min_m), m, ks),
+                         c.corr(c.raster_spectrum("occ", ks, occupied_min_m), m, ks) / n)
         n, sf, sff, of = cache[ks]
         occ_frac = of
         t_spec, tt_spec = ker.height_spectra(c)

@@ -240,11 +240,19 @@ def _asked(points: np.ndarray, occluders, params: dict) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _shadow_tops(pts, lo_x, lo_y, cell):
-    """Highest z of points (N,3) per `cell` cell from (lo_x, lo_y) (shape: the largest cell index + 2 per
-    axis, -inf where empty), then the highest of each cell's 3 x 3 neighbourhood: one compiled pass
-    each (the same values as np.maximum.at and a 3 x 3 maximum filter, without holding the GIL)."""
+def _shadow_tops(pts, cell):
+    """Highest z of points (N,3, N > 0) per `cell` cell from (lo_x, lo_y) = their smallest x and y less
+    one cell (shape: the largest cell index + 2 per axis, -inf where empty), then the highest of each
+    cell's 3 x 3 neighbourhood: one compiled pass each (the same values as np.maximum.at and a 3 x 3
+    maximum filter, without holding the GIL). Returns (raster, lo_x, lo_y)."""
     n = pts.shape[0]
+    lo_x = pts[0, 0]
+    lo_y = pts[0, 1]
+    for k in range(1, n):
+        lo_x = min(lo_x, pts[k, 0])
+        lo_y = min(lo_y, pts[k, 1])
+    lo_x -= cell
+    lo_y -= cell
     ii = np.empty(n, dtype=np.int64)
     jj = np.empty(n, dtype=np.int64)
     n0 = 0
@@ -267,7 +275,7 @@ def _shadow_tops(pts, lo_x, lo_y, cell):
                     if top[a, b] > m:
                         m = top[a, b]
             out[i, j] = m
-    return out
+    return out, lo_x, lo_y
 
 
 class ShadowMap:
@@ -279,9 +287,10 @@ class ShadowMap:
 
     def __init__(self, pts: np.ndarray, cell_m: float, margin_m: float):
         self.cell, self.margin = float(cell_m), float(margin_m)
-        self.lo = pts[:, :2].min(0) - self.cell
-        self.top = _shadow_tops(np.ascontiguousarray(pts, dtype=np.float64), float(self.lo[0]), float(self.lo[1]),
-                                self.cell)
+        if len(pts) == 0:
+            raise ValueError("ShadowMap needs at least one scene point")
+        self.top, lo_x, lo_y = _shadow_tops(np.ascontiguousarray(pts, dtype=np.float64), self.cell)
+        self.lo = np.array([lo_x, lo_y])
 
     def shadowed(self, pts: np.ndarray) -> np.ndarray:
         """Boolean (K,): points (K,3, m) lying more than margin_m below the highest scene point near them."""
@@ -311,6 +320,69 @@ def _offset_along_normals(model, pts_canonical: np.ndarray, offset_m: float) -> 
     return pts_canonical + offset_m * model.surface_normals[i]
 
 
+@numba.njit(cache=True, nogil=True)
+def _view_shares_max(pts, hit, bounds, boxes, cos_yaw, sin_yaw, footprint_margin, above_bottom, top, lo_x, lo_y,
+                     cell, shadow_margin, floor_frac):
+    """The best share over views (points pts[bounds[v]:bounds[v+1]]) of asked points that are hit; a
+    point is asked unless it lies under an occluder box (`hidden_under`, the boxes' yaw cosines and
+    sines given) or, not hit, in the shadow of `top` (`ShadowMap.shadowed`; `top` of shape (0, 0): no
+    shadow map). The share's denominator is at least floor_frac x the view's size and 1. One compiled
+    pass of `_asked`, `_excused` and the per-view counts, the same operations in the same order."""
+    n0, n1 = top.shape
+    best = 0.0
+    for v in range(bounds.shape[0] - 1):
+        n_hit = 0
+        n_asked = 0
+        for k in range(bounds[v], bounds[v + 1]):
+            x, y, z = pts[k, 0], pts[k, 1], pts[k, 2]
+            hidden = False
+            for m in range(boxes.shape[0]):
+                dx = x - boxes[m, 0]
+                dy = y - boxes[m, 1]
+                u = dx * cos_yaw[m] + dy * sin_yaw[m]
+                w = -dx * sin_yaw[m] + dy * cos_yaw[m]
+                if (abs(u) <= 0.5 * boxes[m, 3] + footprint_margin and abs(w) <= 0.5 * boxes[m, 4] + footprint_margin
+                        and z <= boxes[m, 2] - 0.5 * boxes[m, 5] + above_bottom):
+                    hidden = True
+                    break
+            if hidden:
+                continue
+            if not hit[k] and n0 > 0:
+                i = int(np.floor((x - lo_x) / cell))
+                j = int(np.floor((y - lo_y) / cell))
+                if 0 <= i < n0 and 0 <= j < n1 and z < top[i, j] - shadow_margin:
+                    continue  # excused: in the shadow of something observed above it
+            n_asked += 1
+            if hit[k]:
+                n_hit += 1
+        den = max(max(float(n_asked), floor_frac * (bounds[v + 1] - bounds[v])), 1.0)
+        share = n_hit / den
+        if v == 0 or share > best:
+            best = share
+    return best
+
+
+def _best_view_share(pts: np.ndarray, hit: np.ndarray, bounds: np.ndarray, occluders, params: dict,
+                     shadow: ShadowMap | None) -> float:
+    """f_t from the posed views' points (K,3, scene frame, m; view v is pts[bounds[v]:bounds[v+1]]) and
+    which of them have a scene point within coverage_m (`hit`): the best share over the views of asked
+    points that are hit (`_asked`, `_excused`; 0 without views)."""
+    if len(bounds) < 2:
+        return 0.0
+    boxes = np.asarray(occluders, dtype=np.float64).reshape(-1, 7)
+    # The yaws' cosines and sines as `hidden_under` takes them (NumPy's), so the tests are the same bits.
+    cos_yaw = np.array([np.cos(b[6]) for b in boxes])
+    sin_yaw = np.array([np.sin(b[6]) for b in boxes])
+    if shadow is None:
+        top, lo, cell, margin = np.zeros((0, 0)), (0.0, 0.0), 1.0, 0.0
+    else:
+        top, lo, cell, margin = shadow.top, shadow.lo, shadow.cell, shadow.margin
+    return float(_view_shares_max(np.ascontiguousarray(pts, dtype=np.float64), np.ascontiguousarray(hit), bounds,
+                                  boxes, cos_yaw, sin_yaw, float(params["hidden_footprint_margin_m"]),
+                                  float(params["hidden_above_bottom_m"]), top, float(lo[0]), float(lo[1]),
+                                  float(cell), float(margin), float(params["coverage_asked_min_frac"])))
+
+
 def _coverage_upright(views: CoverageViews, R, t, near: NearGrid, occluders, params: dict,
                       offset_m: float = 0.0, shadow: ShadowMap | None = None) -> float:
     """f_t of an upright pose: best over the thinned template views (canonical, moved by the shape offset
@@ -319,18 +391,8 @@ def _coverage_upright(views: CoverageViews, R, t, near: NearGrid, occluders, par
     asked)."""
     pts = views.points + offset_m * views.normals if offset_m else views.points
     allv = pts @ R.T + t
-    hit = near.any_within(allv)
-    asked = _asked(allv, occluders, params) & ~_excused(allv, hit, shadow)
-    bounds = np.asarray(views.bounds, dtype=np.int64)
-    if len(bounds) < 2:
-        return 0.0
-    floor = params["coverage_asked_min_frac"]
-    # Per-view counts from cumulative sums (one pass instead of a Python loop over the views).
-    n_hit = np.concatenate([[0], np.cumsum(hit & asked)])
-    n_asked = np.concatenate([[0], np.cumsum(asked)])
-    a, b = bounds[:-1], bounds[1:]
-    den = np.maximum(np.maximum(n_asked[b] - n_asked[a], floor * (b - a)), 1.0)
-    return float(np.max((n_hit[b] - n_hit[a]) / den))
+    return _best_view_share(allv, near.any_within(allv), np.asarray(views.bounds, dtype=np.int64), occluders,
+                            params, shadow)
 
 
 def _coverage_virtual(model, R, t, near: NearGrid, occluders, params: dict, offset_m: float = 0.0,
@@ -348,14 +410,8 @@ def _coverage_virtual(model, R, t, near: NearGrid, occluders, params: dict, offs
     pts = np.concatenate(views)
     if offset_m:
         pts = _offset_along_normals(model, (pts - t) @ R, offset_m) @ R.T + t
-    hit = near.any_within(pts)
-    asked = _asked(pts, occluders, params) & ~_excused(pts, hit, shadow)
-    bounds = np.cumsum([0] + [len(v) for v in views])
-    n_hit = np.concatenate([[0], np.cumsum(hit & asked)])
-    n_asked = np.concatenate([[0], np.cumsum(asked)])
-    a, b = bounds[:-1], bounds[1:]
-    den = np.maximum(np.maximum(n_asked[b] - n_asked[a], floor * (b - a)), 1.0)
-    return float(np.max((n_hit[b] - n_hit[a]) / den))
+    bounds = np.cumsum([0] + [len(v) for v in views]).astype(np.int64)
+    return _best_view_share(pts, near.any_within(pts), bounds, occluders, params, shadow)
 
 
 def _overhang(h: Hypothesis, scene: SceneIndex, near: np.ndarray, params: dict) -> None:
