@@ -2,9 +2,8 @@
 (proposals.Correlator), also when one correlator serves every class of a round: their outputs must
 equal, to the bit, the same maps computed with one scipy fftconvolve per pair (`_corr`)."""
 
-import pytest
-
 import numpy as np
+import pytest
 from scipy.signal import fftconvolve
 
 from sonardet.detect.model_based.proposals import (
