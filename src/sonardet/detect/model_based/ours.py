@@ -23,6 +23,11 @@ Steps (local scene frame, metres):
 7. output: accepted objects with their score; other hypotheses that do not duplicate an accepted
    object keep a down-weighted score (more recall at low rank costs nothing in AP).
 
+Threads: within a round the fits of the proposals, the tumbled tries and the refits, and the
+per-class correlations, depend only on the state at the round's start; they run on the detector
+call's worker threads (`tasks`, `ModelBasedDetector(threads=N)`), in input order, so the detections
+and counts are the same for any N.
+
 Time bound: a round fits at most `proposal_max_per_round_n` upright proposals (the best-correlating)
 and as many tumbled seed tries; on a dense or pathological cloud (noise everywhere above the seabed)
 the rest are dropped, counted in stats["capped"] and logged (WARNING). Every stage logs its counts at
