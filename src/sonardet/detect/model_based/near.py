@@ -17,7 +17,7 @@ import numpy as np
 
 from ...jit import numba
 
-__all__ = ["NearGrid"]
+__all__ = ["NearGrid", "xy_cells"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -64,26 +64,36 @@ def _any_within(q, pts, start, lo_x, lo_y, cell, nx, ny, r, r2):
 
 
 @numba.njit(cache=True, nogil=True)
-def _columns(pts, cell):
-    """The points (N,3, N > 0) sorted by column (ix * ny + iy of the `cell` grid from their smallest x
-    and y, lo_x and lo_y), then by z within a column; the columns' start offsets (nx * ny + 1,), nx,
-    ny, lo_x and lo_y. A counting sort by column and a sort of each column's few heights (the order of
-    equal heights does not matter to the test)."""
+def xy_cells(pts, cell, pad_cells):
+    """The xy cell indices (ix, iy) (N,) of points (N,3, N > 0) on a grid of side `cell` whose origin
+    (lo_x, lo_y) is their smallest x and y less `pad_cells` cells: floor((x - lo_x) / cell), as NumPy
+    computes it. Returns (ix, iy, lo_x, lo_y)."""
     n = pts.shape[0]
     lo_x = pts[0, 0]
     lo_y = pts[0, 1]
     for k in range(1, n):
         lo_x = min(lo_x, pts[k, 0])
         lo_y = min(lo_y, pts[k, 1])
+    lo_x -= pad_cells * cell
+    lo_y -= pad_cells * cell
     ix = np.empty(n, dtype=np.int64)
     iy = np.empty(n, dtype=np.int64)
-    nx = 0
-    ny = 0
     for k in range(n):
         ix[k] = int(np.floor((pts[k, 0] - lo_x) / cell))
         iy[k] = int(np.floor((pts[k, 1] - lo_y) / cell))
-        nx = max(nx, ix[k] + 1)
-        ny = max(ny, iy[k] + 1)
+    return ix, iy, lo_x, lo_y
+
+
+@numba.njit(cache=True, nogil=True)
+def _columns(pts, cell):
+    """The points (N,3, N > 0) sorted by column (ix * ny + iy of the `cell` grid from their smallest x
+    and y, lo_x and lo_y), then by z within a column; the columns' start offsets (nx * ny + 1,), nx,
+    ny, lo_x and lo_y. A counting sort by column and a sort of each column's few heights (the order of
+    equal heights does not matter to the test)."""
+    n = pts.shape[0]
+    ix, iy, lo_x, lo_y = xy_cells(pts, cell, 0.0)
+    nx = ix.max() + 1
+    ny = iy.max() + 1
     start = np.zeros(nx * ny + 1, dtype=np.int64)
     for k in range(n):
         start[ix[k] * ny + iy[k] + 1] += 1

@@ -46,7 +46,7 @@ from scipy.spatial import cKDTree
 from ...geometry import matrix_to_quat, points_in_box
 from ...jit import numba
 from ...objects.catalog import canonical_box
-from .near import NearGrid
+from .near import NearGrid, xy_cells
 
 
 @dataclass(eq=False)
@@ -246,22 +246,9 @@ def _shadow_tops(pts, cell):
     cell's 3 x 3 neighbourhood: one compiled pass each (the same values as np.maximum.at and a 3 x 3
     maximum filter, without holding the GIL). Returns (raster, lo_x, lo_y)."""
     n = pts.shape[0]
-    lo_x = pts[0, 0]
-    lo_y = pts[0, 1]
-    for k in range(1, n):
-        lo_x = min(lo_x, pts[k, 0])
-        lo_y = min(lo_y, pts[k, 1])
-    lo_x -= cell
-    lo_y -= cell
-    ii = np.empty(n, dtype=np.int64)
-    jj = np.empty(n, dtype=np.int64)
-    n0 = 0
-    n1 = 0
-    for k in range(n):
-        ii[k] = int(np.floor((pts[k, 0] - lo_x) / cell))
-        jj[k] = int(np.floor((pts[k, 1] - lo_y) / cell))
-        n0 = max(n0, ii[k] + 2)
-        n1 = max(n1, jj[k] + 2)
+    ii, jj, lo_x, lo_y = xy_cells(pts, cell, 1.0)
+    n0 = ii.max() + 2
+    n1 = jj.max() + 2
     top = np.full((n0, n1), -np.inf)
     for k in range(n):
         if pts[k, 2] > top[ii[k], jj[k]]:
