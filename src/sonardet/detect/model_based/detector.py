@@ -175,7 +175,8 @@ def detect(xyz: np.ndarray, templates: dict, objects: dict, params: dict | None 
     proposals_outcompeted (ours), capped (what the time bounds left out: ours {proposals, tumbled_rounds},
     `proposal_max_per_round_n`; paper {windows}, `window_max_n`), n_detections, origin (the local origin
     used, input frame), seconds {ground, models (building the detector), proposals, registration,
-    scoring, selection, total}.
+    scoring, selection, total} (with worker threads, registration and scoring are summed over the
+    threads and may add up to more than `total`, the wall time).
     An empty cloud gives no detections and a warning; NaN/Inf points, a wrong shape, an unknown
     variant or parameter, or a class without templates raise ValueError.
     """
