@@ -59,7 +59,6 @@ from .proposals import (
     ncc_peaks,
     vote_map,
 )
-from .tasks import run_tasks, submit_tasks
 from .registration import IcpResult, SceneSource, SurfaceTarget, icp_scene_to_model, is_rigid_transform
 from .scoring import (
     CoverageViews,
@@ -74,6 +73,7 @@ from .scoring import (
     tolerant_distance,
     view_points,
 )
+from .tasks import run_tasks, submit_tasks
 
 log = logging.getLogger(__name__)
 
