@@ -175,7 +175,7 @@ def test_seabed_cell_medians_equal_numpy_median():
 
 
 def test_tasks_run_in_order_and_merge_their_statistics():
-    from sonardet.detect.model_based.tasks import run_tasks, submit_tasks, worker_pool
+    from sonardet.detect.model_based.tasks import run_tasks, worker_pool
 
     def piece(i, part):
         part["icp_runs"] += i
@@ -188,8 +188,7 @@ def test_tasks_run_in_order_and_merge_their_statistics():
         with worker_pool(threads) as pool:
             assert (pool is None) == (threads == 1)
             assert run_tasks(pool, piece, list(range(10)), stats) == [i * i for i in range(10)]
-            later = submit_tasks(pool, piece, [3, 4])
-            assert later.results(stats) == [9, 16]
+            assert run_tasks(pool, piece, [3, 4], stats) == [9, 16]
         assert stats["icp_runs"] == 45 + 7 and stats["icp_runs_by_kind"] == {"k": 12}
         assert stats["seconds"]["scoring"] == 6.0
 

@@ -105,6 +105,8 @@ def test_one_correlator_for_every_class_of_a_round_gives_the_same_maps():
             assert np.array_equal(g, w)
         for g, w in zip(vote_map(r, kernels, 0.15, shared), vote_map(r, kernels, 0.15)):
             assert np.array_equal(g, w)
-    assert len(shared.padded_shapes([k[0].support.shape for k in classes])) >= 1
+    # The spectra a round computes first are exactly those the maps asked for.
+    needed = shared.raster_spectra_needed([k[0].support.shape for k in classes], votes=True)
+    assert {(n, shared._fshape(ks)[1], 0.15) for n, ks in needed} == set(shared._spectra)
     with pytest.raises(ValueError, match="another raster"):
         ncc_maps(Raster(h.copy(), 0.0, 0.0, 0.1), classes[0], 0.15, 0.5, shared)

@@ -75,4 +75,4 @@ class ModelBased(MethodFamily):
         from ..detect.model_based import ModelBasedDetector
 
         return ModelBasedDetector(resources.templates, resources.objects, method.settings["params"],
-                                  method.settings["variant"], threads=max(1, int(resources.threads)))
+                                  method.settings["variant"], threads=resources.threads)

@@ -73,7 +73,7 @@ from .scoring import (
     tolerant_distance,
     view_points,
 )
-from .tasks import run_tasks, submit_tasks
+from .tasks import run_tasks
 
 log = logging.getLogger(__name__)
 
@@ -411,9 +411,8 @@ def _propose_upright(st, classes, p, rnd, accepted, stats):
     # One correlator for the round: the raster's spectra are shared by the classes, computed first
     # (one task each: their FFTs release the GIL).
     corr = Correlator(r)
-    names = ("d", "f", "ff", "occ") + (("vocc",) if rnd > 0 else ())
-    shapes = corr.padded_shapes([k.kernels[0].support.shape for k in classes.values()]).values()
-    run_tasks(st.pool, lambda item, part: corr.raster_spectrum(*item, occ_min), [(n, ks) for n in names for ks in shapes])
+    needed = corr.raster_spectra_needed([k.kernels[0].support.shape for k in classes.values()], votes=rnd > 0)
+    run_tasks(st.pool, lambda item, part: corr.raster_spectrum(*item, occ_min), needed)
 
     def peaks(k, part):  # the correlation peaks of one class
         kernels = k.kernels
@@ -491,9 +490,10 @@ def _screened_crop(st, cls, m, xy, p, stats, tried: list):
     return crop
 
 
-def _submit_upright(st, classes, proposals, p, rnd, accepted, stats):
-    """Start the coarse ICP of every upright proposal from its starts (seabed/top-aligned heights x
-    yaws) on the run's workers; `_upright_hypotheses` takes it on from there."""
+def _hypotheses_upright(st, classes, proposals, p, rnd, accepted, stats):
+    """Upright hypotheses: coarse ICP of every proposal from its starts (seabed/top-aligned heights x
+    yaws), class competition among nearby proposals on the coarse quality, shifted restarts and fine
+    ICP + scoring for the survivors (the fits on the run's workers)."""
     tasks = []
     for cls, xy, yaw, _ in proposals:
         k = classes[cls]
@@ -512,13 +512,7 @@ def _submit_upright(st, classes, proposals, p, rnd, accepted, stats):
         job.coarse(starts, p, part)
         return job
 
-    return submit_tasks(st.pool, coarse, tasks)
-
-
-def _upright_hypotheses(st, submitted, p, rnd, stats):
-    """Upright hypotheses from the coarse fits of `_submit_upright`: class competition among nearby
-    proposals on the coarse quality, then shifted restarts and fine ICP + scoring for the survivors."""
-    jobs = [j for j in submitted.results(stats) if j.best is not None]
+    jobs = [j for j in run_tasks(st.pool, coarse, tasks, stats) if j.best is not None]
     # Class competition: near one another, proposals far below the best coarse quality are dropped.
     qs = np.array([j.best_q for j in jobs])
     xys = np.array([j.xy for j in jobs]).reshape(-1, 2)
@@ -681,9 +675,11 @@ def _tumbled_tries(st, classes, p, rnd, accepted, stats) -> list:
     return tasks
 
 
-def _submit_tumbled(st, tasks, p):
-    """Start the fits of tumbled tries (`_tumbled_tries`) on the run's workers: screened coarse ICP
-    from the starts, shifted restarts, fine ICP and scoring, one task each (None: declined)."""
+def _hypotheses_tumbled(st, classes, p, rnd, accepted, stats) -> list:
+    """Tumbled-orientation hypotheses of the tries of `_tumbled_tries`: screened coarse ICP from their
+    starts, shifted restarts, fine ICP and scoring, one task each on the run's workers."""
+    tasks = _tumbled_tries(st, classes, p, rnd, accepted, stats)
+
     def fit(task, part):
         k, crop, occluders, xy, starts = task
         job = _Job(st, k, crop, p, "tumbled", occluders, xy)
@@ -693,13 +689,8 @@ def _submit_tumbled(st, tasks, p):
         job.shift(p, part, p["tumbled_shift_q_min"])
         return job.finish(st, p, part)
 
-    return submit_tasks(st.pool, fit, tasks)
-
-
-def _tumbled_hypotheses(tasks, submitted, rnd, stats) -> list:
-    """The hypotheses of the tumbled tries `tasks` whose fits `submitted` holds."""
     hyps = []
-    for task, h in zip(tasks, submitted.results(stats)):
+    for task, h in zip(tasks, run_tasks(st.pool, fit, tasks, stats)):
         if h is not None:
             h.round, h.seed_xy = rnd, task[3]
             hyps.append(h)
@@ -910,12 +901,9 @@ def detect_ours(xyz: np.ndarray, classes: dict[str, OursClass], p: dict, stats: 
     for rnd in range(int(p["proposal_max_rounds_n"])):
         t = time.perf_counter()
         props = _cap_proposals(_propose_upright(st, classes, p, rnd, accepted, stats), p, rnd, stats)
-        # Every fit of a round depends only on the state at its start: the tumbled tries are prepared
-        # and queued while the workers run the upright coarse fits (same hypotheses, in the same order).
-        upright = _submit_upright(st, classes, props, p, rnd, accepted, stats)
-        tumbled = _tumbled_tries(st, classes, p, rnd, accepted, stats) if rnd > 0 and p["tumbled_inits"] else []
-        tumbled_fits = _submit_tumbled(st, tumbled, p)
-        pending = _upright_hypotheses(st, upright, p, rnd, stats) + _tumbled_hypotheses(tumbled, tumbled_fits, rnd, stats)
+        pending = _hypotheses_upright(st, classes, props, p, rnd, accepted, stats)
+        if rnd > 0 and p["tumbled_inits"]:
+            pending += _hypotheses_tumbled(st, classes, p, rnd, accepted, stats)
         stats["hypotheses"] += len(pending)
         n_pending = len(pending)
         new = _select(st, classes, pending, accepted, p, stats)

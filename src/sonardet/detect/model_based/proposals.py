@@ -181,9 +181,13 @@ class Correlator:
             self._spectra[key] = sp_fft.rfftn(a.astype(np.float32, copy=False), fshape, axes=(0, 1))
         return self._spectra[key]
 
-    def padded_shapes(self, kshapes) -> dict:
-        """One kernel shape per distinct padded shape of `kshapes` (padded shape -> kernel shape)."""
-        return {self._fshape(ks)[1]: ks for ks in kshapes}
+    def raster_spectra_needed(self, kshapes, votes: bool) -> list:
+        """The (raster name, kernel shape) pairs whose `raster_spectrum` `ncc_maps` (and `vote_map`, with
+        `votes`) ask for kernels of `kshapes`: one kernel shape per distinct padded shape. Computing
+        them first, in parallel, spares the classes' tasks from computing one twice."""
+        shapes = {self._fshape(ks)[1]: ks for ks in kshapes}.values()
+        names = ("d", "f", "ff", "occ") + (("vocc",) if votes else ())
+        return [(name, ks) for name in names for ks in shapes]
 
     def _fshape(self, kshape) -> tuple[tuple[int, ...], tuple[int, ...]]:
         full = tuple(a + b - 1 for a, b in zip(self.shape, kshape))

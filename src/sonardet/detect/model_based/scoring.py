@@ -233,7 +233,8 @@ class SceneIndex:
 
 
 def _asked(points: np.ndarray, occluders, params: dict) -> np.ndarray:
-    """Boolean (K,): template points (scene frame) the sonar could see, i.e. not hidden under an occluder."""
+    """Boolean (K,): template points (scene frame) the sonar could see, i.e. not hidden under an occluder.
+    (The scorer runs this test inside `_view_shares_max`; this NumPy form is its reference in the tests.)"""
     if not len(occluders):
         return np.ones(len(points), dtype=bool)
     return ~hidden_under(points, occluders, params["hidden_footprint_margin_m"], params["hidden_above_bottom_m"])
@@ -290,7 +291,7 @@ class ShadowMap:
 
 def _excused(points: np.ndarray, hit: np.ndarray, shadow) -> np.ndarray:
     """Boolean (K,): template points not hit and shadowed by observed points above them (none without a
-    shadow map)."""
+    shadow map). (The scorer runs this test inside `_view_shares_max`; this form is its reference.)"""
     out = np.zeros(len(points), dtype=bool)
     miss = ~hit
     if shadow is not None and miss.any():
@@ -386,9 +387,8 @@ def _coverage_virtual(model, R, t, near: NearGrid, occluders, params: dict, offs
                       shadow: ShadowMap | None = None) -> float:
     """f_t of a tumbled pose: best over the virtual views of the posed mesh (see `virtual_views`) with at
     least virtual_view_min_points_n points, moved by the shape offset `offset_m` along their normals.
-    The views' points are tested together and counted per view from cumulative sums (one pass of each
-    test instead of one per view; the same shares)."""
-    floor = params["coverage_asked_min_frac"]
+    The views' points are tested together and counted per view in one compiled pass
+    (`_best_view_share`; the same shares as one test per view)."""
     dirs = view_directions(params["virtual_view_incidences_deg"], int(params["virtual_view_azimuths_n"]))
     views = [pv for pv in virtual_views(model, R, t, params["coverage_voxel_m"], dirs)
              if len(pv) >= params["virtual_view_min_points_n"]]

@@ -2,8 +2,9 @@
 
 Within a round the hypotheses of different proposals do not depend on one another: each reads the
 run's shared state (candidate points, KD-trees, which points are explained) and writes only its own
-hypothesis. Their heavy parts release the GIL (the compiled grid ICP, KD-tree ball queries, Open3D
-ray casts, NumPy on thousands of points), so two threads overlap a good part of them.
+hypothesis. Their heavy parts release the GIL (the compiled grid ICP and coverage passes, KD-tree
+queries, FFTs, NumPy on large arrays), so two threads overlap a good part of them; Open3D's ray
+casting and voxel thinning and NumPy on small arrays hold it.
 
 The result does not depend on the thread count: a piece gets its own statistics dict (`task_stats`),
 the results come back in input order and the statistics are merged in that order (`merge_stats`).
@@ -37,48 +38,19 @@ def merge_stats(stats: dict, part: dict) -> None:
         stats["seconds"][stage] = stats["seconds"].get(stage, 0.0) + s
 
 
-class Submitted:
-    """Pieces handed to the pool by `submit_tasks`; `results` waits for them."""
-
-    def __init__(self, futures: list, parts: list):
-        self._futures, self._parts = futures, parts
-
-    def results(self, stats: dict | None = None) -> list:
-        """The pieces' results in input order; each piece's statistics are merged into `stats` (when
-        given) in that order. An exception of a piece is raised here (after the pieces before it were
-        merged)."""
-        out = []
-        for fut, part in zip(self._futures, self._parts):
-            out.append(fut.result())
-            if stats is not None:
-                merge_stats(stats, part)
-        return out
-
-
-class _Done:
-    """A piece already run on the caller's thread (no pool): a finished future."""
-
-    def __init__(self, fn, item, part):
-        self._value = fn(item, part)
-
-    def result(self):
-        return self._value
-
-
-def submit_tasks(pool: ThreadPoolExecutor | None, fn, items: list) -> Submitted:
-    """Start fn(item, piece_stats) for each item on `pool`'s threads (or run them here, in order, when
-    there is no pool); the caller may prepare other work meanwhile and then collect with
-    `Submitted.results`."""
-    parts = [task_stats() for _ in items]
-    if pool is None:
-        return Submitted([_Done(fn, item, part) for item, part in zip(items, parts)], parts)
-    return Submitted([pool.submit(fn, item, part) for item, part in zip(items, parts)], parts)
-
-
 def run_tasks(pool: ThreadPoolExecutor | None, fn, items: list, stats: dict | None = None) -> list:
-    """[fn(item, piece_stats) for item in items], on `pool`'s threads when there is one; each piece's
-    statistics are merged into `stats` (when given) in input order (`submit_tasks`, then `results`)."""
-    return submit_tasks(pool if len(items) > 1 else None, fn, items).results(stats)
+    """[fn(item, piece_stats) for item in items], on `pool`'s threads when there is one and more than
+    one item; each piece's statistics are merged into `stats` (when given) in input order. An exception
+    of a piece is raised here."""
+    parts = [task_stats() for _ in items]
+    if pool is None or len(items) < 2:
+        out = [fn(item, part) for item, part in zip(items, parts)]
+    else:
+        out = [fut.result() for fut in [pool.submit(fn, item, part) for item, part in zip(items, parts)]]
+    if stats is not None:
+        for part in parts:
+            merge_stats(stats, part)
+    return out
 
 
 #: Upper bound of `worker_pool`'s threads in this process (None: none); a tile worker process sets 1.
