@@ -242,6 +242,23 @@ def test_snakemake_process_usage_is_recorded(smoke_run):
     assert "job-start rate limit lifted" in (smoke_run / "snakemake_output.txt").read_text()
 
 
+def test_every_job_records_its_exact_cpu(smoke_run):
+    """Each job writes its CPU seconds and threads beside its log at its end, and the time line uses
+    them instead of Snakemake's sampled cpu_time: every job has one, their sum is at most what the
+    Snakemake process counted for its children, and the timeline summary says so."""
+    from sonardet.report.timeline import read_benchmarks
+
+    df = read_benchmarks(smoke_run / "results/benchmarks")
+    df = df[df["rule"] != "run_timeline.tsv"]
+    missing = df.loc[~df["cpu_exact"].astype(bool), "job"].tolist()
+    assert not missing, missing
+    assert (df["cpu_s"] > 0).all() and (df["threads"] >= 1).all()
+    kids = json.loads((smoke_run / "results/benchmarks/snakemake_process.json").read_text())["children_cpu_s"]
+    assert df["cpu_s"].sum() <= kids * 1.01 + 1.0
+    summary = json.loads((smoke_run / "results/report/timeline.json").read_text())
+    assert summary["cpu_exact_jobs"] == summary["jobs"] and summary["idle_core_s"] >= 0
+
+
 def test_toy_method_from_a_plugin(smoke_run):
     """A method defined only in tests/plugins/centroid_method.py and registered from the config is run
     per scene, evaluated on every test set and shown in the comparison and timing tables."""

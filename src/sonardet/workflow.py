@@ -1,13 +1,15 @@
-"""Glue for the thin Snakemake scripts: plugins, logging to the rule's log file, error reporting, and
-a job's method and resources.
+"""Glue for the thin Snakemake scripts: plugins, logging to the rule's log file, error reporting, a
+job's method and resources, and its exact CPU time (`usage_path`).
 
 Takes the `snakemake` object duck-typed, so the library imports nothing from Snakemake.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import os
+import resource
 import sys
 import time
 import traceback
@@ -38,7 +40,35 @@ def rule_logging(smk, name: str):
     except Exception:
         log.error("failed:\n%s", traceback.format_exc())
         raise
-    log.info("done in %.2f s", time.perf_counter() - t0)
+    usage = job_usage(int(getattr(smk, "threads", 1) or 1))
+    log.info("done in %.2f s (the job's process: %.2f s of CPU since it started)", time.perf_counter() - t0,
+             usage["cpu_s"])
+    if getattr(smk, "log", None):
+        from .io.atomic import atomic_write_text
+
+        atomic_write_text(usage_path(smk.log[0]), json.dumps(usage) + "\n")
+
+
+def usage_path(log_path) -> Path:
+    """Where a job records its usage: beside its log, `<log without .log>.usage.json`.
+
+    Snakemake's benchmark files sample a job's CPU time (every second for its first 30 s, then every
+    30 s), so a long job's `cpu_time` misses up to 30 s; the record a job writes at its end counts all
+    of its CPU up to then, imports included (the interpreter's shutdown after it, a fraction of a
+    second, is not in it).
+    The workflow's log and benchmark files share their relative paths (`results/logs/X.log`,
+    `results/benchmarks/X.tsv`), which is how `sonardet.report.timeline` finds the record of a
+    benchmark file."""
+    p = Path(log_path)
+    return p.with_name((p.name[: -len(".log")] if p.name.endswith(".log") else p.name) + ".usage.json")
+
+
+def job_usage(threads: int) -> dict:
+    """This process's CPU seconds so far (user + system, its imports included) plus those of its
+    finished children (e.g. tile workers), and the threads the job was given."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {"cpu_s": own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime, "threads": int(threads)}
 
 
 @contextmanager

@@ -6,6 +6,17 @@ seconds (`cpu_time`); the file's modification time is when the job ended, so it 
 before. (Snakemake records no start times; the main log has them only to the second.) Meaningful
 for a run that made every job (a fresh run); after a partial rerun the old jobs keep their old times.
 
+Snakemake samples `cpu_time` (every second for a job's first 30 s, then every 30 s), so a long job's
+figure misses up to 30 s: in a default run the sampled CPU summed to 77 of the jobs' 90 minutes. Each
+job of this workflow also records its exact CPU seconds and threads at its end, beside its log
+(`sonardet.workflow.usage_path`: `{logs}/{rule}/{wildcards...}.usage.json`, the benchmark file's
+relative path); that record is used where it exists, the sampled figure elsewhere.
+
+Two different "idle" figures: the idle core-time is the core-time no job held (cores x wall minus
+each job's seconds x its threads: what the scheduler left unused), and the job core-time off the
+recorded CPU is what the jobs held but did not compute by their records (waiting for files, the GIL
+or a core that another job's threads took, and each interpreter's shutdown after its record).
+
 The chain reported is the *blocking chain*: from the job that ended last, each step back is the job
 that ended last before this one started, i.e. what this job waited for (a dependency or a free
 core). Its total is the run's wall time minus the gaps in the chain.
@@ -33,11 +44,26 @@ __all__ = ["PROCESS_FILE", "blocking_chain", "critical_path", "plot_gantt", "pro
 PROCESS_FILE = "snakemake_process.json"
 
 
-def read_benchmarks(root) -> pd.DataFrame:
+def _usage_record(path: Path) -> dict | None:
+    """A job's usage record (`sonardet.workflow.job_usage`), or None where there is none."""
+    if not path.is_file():
+        return None
+    try:
+        rec = json.loads(path.read_text())
+        return {"cpu_s": float(rec["cpu_s"]), "threads": max(1, int(rec.get("threads", 1)))}
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: not a job's usage record ({exc}); delete it and rerun its job") from None
+
+
+def read_benchmarks(root, logs=None) -> pd.DataFrame:
     """Every `{root}/**/*.tsv` benchmark file as a row: rule (first folder under root), job (the rest of
-    the path), start and end (s, epoch), seconds (wall), cpu_s, max_rss_mb; sorted by start."""
+    the path), start and end (s, epoch), seconds (wall), cpu_s, cpu_exact (True where the job's usage
+    record under `logs` gave cpu_s, False where it is Snakemake's sampled `cpu_time`), threads (from
+    the record, else 1), max_rss_mb; sorted by start. logs: the run's log folder (default: `logs`
+    beside `root`)."""
     rows = []
     root = Path(root)
+    logs = root.parent / "logs" if logs is None else Path(logs)
     for p in sorted(root.rglob("*.tsv")):
         try:
             df = pd.read_csv(p, sep="\t")
@@ -50,10 +76,13 @@ def read_benchmarks(root) -> pd.DataFrame:
         s = float(df["s"].iloc[0])
         cpu = pd.to_numeric(df.get("cpu_time", pd.Series([np.nan])), errors="coerce").iloc[0]
         rss = pd.to_numeric(df.get("max_rss", pd.Series([np.nan])), errors="coerce").iloc[0]
+        rec = _usage_record(logs / rel.with_suffix(".usage.json"))
         rows.append({"rule": rel.parts[0] if len(rel.parts) > 1 else rel.stem,
                      "job": str(rel.with_suffix("")), "start": end - s, "end": end, "seconds": s,
-                     "cpu_s": float(cpu), "max_rss_mb": float(rss)})
-    df = pd.DataFrame(rows, columns=["rule", "job", "start", "end", "seconds", "cpu_s", "max_rss_mb"])
+                     "cpu_s": float(cpu) if rec is None else rec["cpu_s"], "cpu_exact": rec is not None,
+                     "threads": 1 if rec is None else rec["threads"], "max_rss_mb": float(rss)})
+    df = pd.DataFrame(rows, columns=["rule", "job", "start", "end", "seconds", "cpu_s", "cpu_exact", "threads",
+                                     "max_rss_mb"])
     return df.sort_values(["start", "job"]).reset_index(drop=True)
 
 
@@ -128,18 +157,25 @@ def critical_path(df: pd.DataFrame, deps: dict) -> tuple[list[str], float]:
 
 
 def run_summary(df: pd.DataFrame, cores: int) -> dict:
-    """Wall time (s, first start to last end), total job time (s, sum of wall seconds), CPU time (s),
-    idle core-time (cores x wall - CPU time, s), jobs, the blocking chain's rules and seconds, and the
-    seconds per rule (sum, sorted)."""
+    """Wall time (s, first start to last end), total job time (s, sum of wall seconds), job core-time
+    (s, each job's wall seconds x its threads), idle core-time (cores x wall - job core-time, s: no job
+    on the core), utilisation (job core-time / (cores x wall)), CPU time (s; `cpu_exact_jobs` of the
+    jobs from their usage records, the others sampled by Snakemake, see the module doc) and the job
+    core-time not spent on a CPU, jobs, the blocking chain's rules and seconds, and the seconds per
+    rule (sum, sorted)."""
     if df.empty:
         return {"jobs": 0}
     wall = float(df["end"].max() - df["start"].min())
     cpu = float(np.nansum(df["cpu_s"]))
+    threads = df["threads"] if "threads" in df else pd.Series(1, index=df.index)
+    core = float((df["seconds"] * threads).sum())
+    exact = int(df["cpu_exact"].sum()) if "cpu_exact" in df else 0
     chain = blocking_chain(df)
     per_rule = df.groupby("rule")["seconds"].agg(["count", "sum", "max"]).sort_values("sum", ascending=False)
     return {"jobs": int(len(df)), "cores": int(cores), "wall_s": wall, "job_s": float(df["seconds"].sum()),
-            "cpu_s": cpu, "idle_core_s": max(0.0, cores * wall - cpu),
-            "utilisation": cpu / (cores * wall) if wall > 0 else math.nan,
+            "job_core_s": core, "idle_core_s": max(0.0, cores * wall - core),
+            "utilisation": core / (cores * wall) if wall > 0 else math.nan,
+            "cpu_s": cpu, "cpu_exact_jobs": exact, "job_core_off_cpu_s": max(0.0, core - cpu),
             "chain": [{"job": r.job, "rule": r.rule, "start_s": float(r.start - df["start"].min()),
                        "seconds": float(r.seconds)} for r in chain.itertuples()],
             "chain_s": float(chain["seconds"].sum()),

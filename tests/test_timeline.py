@@ -1,0 +1,81 @@
+"""The run's time line (sonardet.report.timeline): each job's exact CPU record written at its end
+(sonardet.workflow), read in place of Snakemake's sampled cpu_time; the idle core-time from the
+jobs' threads; the blocking chain."""
+
+import json
+import os
+import time
+from types import SimpleNamespace
+
+import pytest
+
+from sonardet.report.timeline import blocking_chain, read_benchmarks, run_summary
+from sonardet.workflow import job_usage, rule_logging, usage_path
+
+HEADER = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
+
+
+def _bench(root, rel, wall_s, cpu_s, end):
+    p = root / "benchmarks" / rel
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(HEADER + f"{wall_s}\t0:00:00\t100\t200\t90\t95\t0\t0\t50\t{cpu_s}\n")
+    os.utime(p, (end, end))
+    return p
+
+
+def test_usage_path_mirrors_the_log():
+    assert str(usage_path("results/logs/train/sasa_100.log")) == "results/logs/train/sasa_100.usage.json"
+    assert str(usage_path("x/y")) == "x/y.usage.json"
+
+
+def test_a_job_records_its_cpu_and_threads_at_its_end(tmp_path):
+    log = tmp_path / "logs" / "rule" / "a.log"
+    log.parent.mkdir(parents=True)
+    before = job_usage(1)["cpu_s"]
+    with rule_logging(SimpleNamespace(log=[str(log)], threads=3), "rule"):
+        t = time.process_time()
+        while time.process_time() - t < 0.2:  # burn some CPU inside the job
+            pass
+    rec = json.loads(usage_path(log).read_text())
+    assert rec["threads"] == 3
+    assert rec["cpu_s"] >= before + 0.2
+    assert "of CPU since it started" in log.read_text()
+
+
+def test_a_failed_job_leaves_no_record(tmp_path):
+    log = tmp_path / "b.log"
+    with pytest.raises(RuntimeError):
+        with rule_logging(SimpleNamespace(log=[str(log)], threads=1), "rule"):
+            raise RuntimeError("boom")
+    assert not usage_path(log).exists()
+
+
+def test_exact_records_replace_the_sampled_cpu_and_threads_count_in_the_idle_time(tmp_path):
+    t0 = 1_700_000_000.0
+    _bench(tmp_path, "train/m.tsv", 100.0, 60.0, t0 + 100)  # sampled: 60 of its 95 s
+    _bench(tmp_path, "detect/a.tsv", 40.0, 30.0, t0 + 40)
+    _bench(tmp_path, "detect/b.tsv", 50.0, 30.0, t0 + 100)
+    rec = usage_path(tmp_path / "logs" / "train" / "m.log")
+    rec.parent.mkdir(parents=True)
+    rec.write_text(json.dumps({"cpu_s": 95.0, "threads": 2}))
+    df = read_benchmarks(tmp_path / "benchmarks")
+    row = df.set_index("job").loc["train/m"]
+    assert row["cpu_s"] == 95.0 and bool(row["cpu_exact"]) and row["threads"] == 2
+    assert not df.set_index("job").loc["detect/a", "cpu_exact"]
+    s = run_summary(df, cores=3)
+    assert s["wall_s"] == pytest.approx(100.0)
+    assert s["job_core_s"] == pytest.approx(100 * 2 + 40 + 50)  # the training held two cores
+    assert s["idle_core_s"] == pytest.approx(3 * 100 - 290)
+    assert s["utilisation"] == pytest.approx(290 / 300)
+    assert s["cpu_s"] == pytest.approx(95 + 30 + 30) and s["cpu_exact_jobs"] == 1
+    assert s["job_core_off_cpu_s"] == pytest.approx(290 - 155)
+    assert list(blocking_chain(df)["job"])[-1] in {"train/m", "detect/b"}
+
+
+def test_a_broken_record_is_refused_naming_it(tmp_path):
+    _bench(tmp_path, "r/x.tsv", 1.0, 0.5, 1_700_000_000.0)
+    rec = usage_path(tmp_path / "logs" / "r" / "x.log")
+    rec.parent.mkdir(parents=True)
+    rec.write_text("{not json")
+    with pytest.raises(ValueError, match="x.usage.json"):
+        read_benchmarks(tmp_path / "benchmarks")
