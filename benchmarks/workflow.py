@@ -68,8 +68,8 @@ def main() -> int:
     ap.add_argument("--png", default=None)
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
+    # Every job of the finished run, its last one (run_timeline) included: it is part of the run's wall time.
     df = read_benchmarks(Path(args.results) / "benchmarks")
-    df = df[df["rule"] != "run_timeline.tsv"]
     s = run_summary(df, args.cores)
     print(f"{s['jobs']} jobs on {args.cores} cores: wall {s['wall_s'] / 60:.1f} min, job time "
           f"{s['job_s'] / 60:.1f} min, idle core-time {s['idle_core_s'] / 60:.1f} min (no job on the core; "
@@ -90,9 +90,9 @@ def main() -> int:
         path, total = critical_path(df, job_graph(args.configfile))
         s["critical_path"], s["critical_path_s"] = path, total
         print(f"dependency critical path ({total / 60:.1f} min of jobs): {' -> '.join(path)}")
-    print("seconds per rule (sum, jobs, max):")
+    print("seconds per rule (wall sum, jobs, longest job, CPU sum):")
     for rule, v in s["per_rule"].items():
-        print(f"  {rule:36s} {v['sum_s']:8.0f} s  {v['jobs']:4d}  {v['max_s']:7.1f} s")
+        print(f"  {rule:36s} {v['sum_s']:8.0f} s  {v['jobs']:4d}  {v['max_s']:7.1f} s  {v['cpu_s']:8.0f} s CPU")
     if args.png:
         plot_gantt(df, args.png, args.cores)
     if args.json:

@@ -69,6 +69,8 @@ def test_exact_records_replace_the_sampled_cpu_and_threads_count_in_the_idle_tim
     assert s["utilisation"] == pytest.approx(290 / 300)
     assert s["cpu_s"] == pytest.approx(95 + 30 + 30) and s["cpu_exact_jobs"] == 1
     assert s["job_core_off_cpu_s"] == pytest.approx(290 - 155)
+    assert s["per_rule"]["detect"] == {"jobs": 2, "sum_s": 90.0, "max_s": 50.0, "cpu_s": 60.0}
+    assert s["per_rule"]["train"]["cpu_s"] == 95.0
     assert list(blocking_chain(df)["job"])[-1] in {"train/m", "detect/b"}
 
 

@@ -249,7 +249,7 @@ def test_every_job_records_its_exact_cpu(smoke_run):
     from sonardet.report.timeline import read_benchmarks
 
     df = read_benchmarks(smoke_run / "results/benchmarks")
-    df = df[df["rule"] != "run_timeline.tsv"]
+    df = df[df["rule"] != "run_timeline"]
     missing = df.loc[~df["cpu_exact"].astype(bool), "job"].tolist()
     assert not missing, missing
     assert (df["cpu_s"] > 0).all() and (df["threads"] >= 1).all()

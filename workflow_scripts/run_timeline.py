@@ -10,7 +10,7 @@ from sonardet.report.timeline import plot_gantt, read_benchmarks, run_summary
 with job(snakemake, "run_timeline") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     df = read_benchmarks(smk.params.benchmarks)
-    df = df[df["rule"] != "run_timeline.tsv"]  # this job's own file (from an earlier run)
+    df = df[df["rule"] != "run_timeline"]  # this job's own file (from an earlier run)
     cores = int(smk.params.cores)
     summary = run_summary(df, cores)
     atomic_write_text(smk.output.summary, json.dumps(summary, indent=1) + "\n")

@@ -171,7 +171,8 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
     core = float((df["seconds"] * threads).sum())
     exact = int(df["cpu_exact"].sum()) if "cpu_exact" in df else 0
     chain = blocking_chain(df)
-    per_rule = df.groupby("rule")["seconds"].agg(["count", "sum", "max"]).sort_values("sum", ascending=False)
+    per_rule = df.groupby("rule").agg(count=("seconds", "count"), sum=("seconds", "sum"), max=("seconds", "max"),
+                                      cpu=("cpu_s", "sum")).sort_values("sum", ascending=False)
     return {"jobs": int(len(df)), "cores": int(cores), "wall_s": wall, "job_s": float(df["seconds"].sum()),
             "job_core_s": core, "idle_core_s": max(0.0, cores * wall - core),
             "utilisation": core / (cores * wall) if wall > 0 else math.nan,
@@ -179,8 +180,8 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
             "chain": [{"job": r.job, "rule": r.rule, "start_s": float(r.start - df["start"].min()),
                        "seconds": float(r.seconds)} for r in chain.itertuples()],
             "chain_s": float(chain["seconds"].sum()),
-            "per_rule": {k: {"jobs": int(v["count"]), "sum_s": float(v["sum"]), "max_s": float(v["max"])}
-                         for k, v in per_rule.iterrows()}}
+            "per_rule": {k: {"jobs": int(v["count"]), "sum_s": float(v["sum"]), "max_s": float(v["max"]),
+                             "cpu_s": float(v["cpu"])} for k, v in per_rule.iterrows()}}
 
 
 def plot_gantt(df: pd.DataFrame, out_png, cores: int, title: str = "workflow run") -> Path:
