@@ -30,6 +30,7 @@ from sonardet.report.timeline import (  # noqa: E402
     read_benchmarks,
     read_process_usage,
     run_summary,
+    summary_lines,
 )
 
 
@@ -71,12 +72,7 @@ def main() -> int:
     # Every job of the finished run, its last one (run_timeline) included: it is part of the run's wall time.
     df = read_benchmarks(Path(args.results) / "benchmarks")
     s = run_summary(df, args.cores)
-    print(f"{s['jobs']} jobs on {args.cores} cores: wall {s['wall_s'] / 60:.1f} min, job time "
-          f"{s['job_s'] / 60:.1f} min, idle core-time {s['idle_core_s'] / 60:.1f} min (no job on the core; "
-          f"{100 * s['utilisation']:.0f} % of the core-time held by jobs)")
-    print(f"CPU in jobs {s['cpu_s'] / 60:.1f} min ({s['cpu_exact_jobs']} of {s['jobs']} jobs from their own exact "
-          f"records, the rest from Snakemake's sampled cpu_time, which misses up to 30 s a job), "
-          f"{s['job_core_off_cpu_s'] / 60:.1f} min of job core-time off that CPU (waiting, interpreter exits)")
+    print("\n".join(summary_lines(s)[:2]))
     proc = read_process_usage(Path(args.results) / "benchmarks")
     if proc is not None:
         s["snakemake_process"] = proc

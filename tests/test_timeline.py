@@ -10,7 +10,8 @@ from types import SimpleNamespace
 import pytest
 
 from sonardet.report.timeline import blocking_chain, read_benchmarks, run_summary
-from sonardet.workflow import job_usage, rule_logging, usage_path
+from sonardet.usage import job_usage, usage_path
+from sonardet.workflow import rule_logging
 
 HEADER = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
 

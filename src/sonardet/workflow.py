@@ -1,5 +1,5 @@
 """Glue for the thin Snakemake scripts: plugins, logging to the rule's log file, error reporting, a
-job's method and resources, and its exact CPU time (`usage_path`).
+job's method and resources, and its exact CPU record (`sonardet.usage`).
 
 Takes the `snakemake` object duck-typed, so the library imports nothing from Snakemake.
 """
@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import resource
 import sys
 import time
 import traceback
@@ -17,8 +16,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .determinism import ISA_PINNED, THREAD_VARIABLES
+from .io.atomic import atomic_write_text
 from .methods import Method, Resources
 from .plugins import load_plugins
+from .usage import job_usage, usage_path
 
 
 @contextmanager
@@ -40,35 +41,15 @@ def rule_logging(smk, name: str):
     except Exception:
         log.error("failed:\n%s", traceback.format_exc())
         raise
-    usage = job_usage(int(getattr(smk, "threads", 1) or 1))
+    usage = job_usage(_threads(smk))
     log.info("done in %.2f s (the job's process: %.2f s of CPU since it started)", time.perf_counter() - t0,
              usage["cpu_s"])
     if getattr(smk, "log", None):
-        from .io.atomic import atomic_write_text
-
-        atomic_write_text(usage_path(smk.log[0]), json.dumps(usage) + "\n")
+        atomic_write_text(usage_path(smk.log[0]), json.dumps(usage) + "\n")  # exact CPU (sonardet.usage)
 
 
-def usage_path(log_path) -> Path:
-    """Where a job records its usage: beside its log, `<log without .log>.usage.json`.
-
-    Snakemake's benchmark files sample a job's CPU time (every second for its first 30 s, then every
-    30 s), so a long job's `cpu_time` misses up to 30 s; the record a job writes at its end counts all
-    of its CPU up to then, imports included (the interpreter's shutdown after it, a fraction of a
-    second, is not in it).
-    The workflow's log and benchmark files share their relative paths (`results/logs/X.log`,
-    `results/benchmarks/X.tsv`), which is how `sonardet.report.timeline` finds the record of a
-    benchmark file."""
-    p = Path(log_path)
-    return p.with_name((p.name[: -len(".log")] if p.name.endswith(".log") else p.name) + ".usage.json")
-
-
-def job_usage(threads: int) -> dict:
-    """This process's CPU seconds so far (user + system, its imports included) plus those of its
-    finished children (e.g. tile workers), and the threads the job was given."""
-    own = resource.getrusage(resource.RUSAGE_SELF)
-    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return {"cpu_s": own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime, "threads": int(threads)}
+def _threads(smk) -> int:
+    return int(getattr(smk, "threads", 1) or 1)
 
 
 @contextmanager
@@ -98,4 +79,4 @@ def job_resources(smk, method: Method | None = None) -> Resources:
     model = Path(inp.model) if "model" in names else None
     device = (method.settings.get("device", "auto") if method is not None else "auto")
     return Resources(objects=objects, templates=templates, model_path=model, device=device,
-                     threads=int(getattr(smk, "threads", 1) or 1))
+                     threads=_threads(smk))

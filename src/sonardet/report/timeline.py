@@ -9,8 +9,8 @@ for a run that made every job (a fresh run); after a partial rerun the old jobs 
 Snakemake samples `cpu_time` (every second for a job's first 30 s, then every 30 s), so a long job's
 figure misses up to 30 s: in a default run the sampled CPU summed to 77 of the jobs' 90 minutes. Each
 job of this workflow also records its exact CPU seconds and threads at its end, beside its log
-(`sonardet.workflow.usage_path`: `{logs}/{rule}/{wildcards...}.usage.json`, the benchmark file's
-relative path); that record is used where it exists, the sampled figure elsewhere.
+(`sonardet.usage`: `{logs}/{rule}/{wildcards...}.usage.json`, the benchmark file's relative path);
+that record is used where it exists, the sampled figure elsewhere.
 
 Two different "idle" figures: the idle core-time is the core-time no job held (cores x wall minus
 each job's seconds x its threads: what the scheduler left unused), and the job core-time off the
@@ -34,25 +34,15 @@ import numpy as np
 import pandas as pd
 from matplotlib import colormaps
 
+from ..usage import cpu_seconds, read_usage, usage_path
 from .style import new_figure, write_figure
 
 __all__ = ["PROCESS_FILE", "blocking_chain", "critical_path", "plot_gantt", "process_usage", "read_benchmarks",
-           "read_process_usage", "run_summary"]
+           "read_process_usage", "run_summary", "summary_lines"]
 
 #: Where the workflow records its Snakemake process's own usage (under the benchmark folder), written
 #: by the Snakefile's onsuccess / onerror handlers.
 PROCESS_FILE = "snakemake_process.json"
-
-
-def _usage_record(path: Path) -> dict | None:
-    """A job's usage record (`sonardet.workflow.job_usage`), or None where there is none."""
-    if not path.is_file():
-        return None
-    try:
-        rec = json.loads(path.read_text())
-        return {"cpu_s": float(rec["cpu_s"]), "threads": max(1, int(rec.get("threads", 1)))}
-    except (ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{path}: not a job's usage record ({exc}); delete it and rerun its job") from None
 
 
 def read_benchmarks(root, logs=None) -> pd.DataFrame:
@@ -76,7 +66,7 @@ def read_benchmarks(root, logs=None) -> pd.DataFrame:
         s = float(df["s"].iloc[0])
         cpu = pd.to_numeric(df.get("cpu_time", pd.Series([np.nan])), errors="coerce").iloc[0]
         rss = pd.to_numeric(df.get("max_rss", pd.Series([np.nan])), errors="coerce").iloc[0]
-        rec = _usage_record(logs / rel.with_suffix(".usage.json"))
+        rec = read_usage(usage_path(logs / rel.with_suffix(".log")))  # the job's log mirrors its benchmark file
         rows.append({"rule": rel.parts[0] if len(rel.parts) > 1 else rel.stem,
                      "job": str(rel.with_suffix("")), "start": end - s, "end": end, "seconds": s,
                      "cpu_s": float(cpu) if rec is None else rec["cpu_s"], "cpu_exact": rec is not None,
@@ -94,12 +84,11 @@ def process_usage() -> dict:
     cluster profile the jobs run elsewhere: the children are then the local jobs only."""
     import psutil  # imported here: only the workflow's end handlers need it
 
-    own = resource.getrusage(resource.RUSAGE_SELF)
-    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
     wall = time.time() - psutil.Process().create_time()
-    own_cpu = own.ru_utime + own.ru_stime
-    return {"own_cpu_s": own_cpu, "children_cpu_s": kids.ru_utime + kids.ru_stime, "wall_s": wall,
-            "own_core_share": own_cpu / wall if wall > 0 else math.nan, "own_max_rss_mb": own.ru_maxrss / 1024.0}
+    own_cpu = cpu_seconds(resource.RUSAGE_SELF)
+    return {"own_cpu_s": own_cpu, "children_cpu_s": cpu_seconds(resource.RUSAGE_CHILDREN), "wall_s": wall,
+            "own_core_share": own_cpu / wall if wall > 0 else math.nan,
+            "own_max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
 
 def read_process_usage(root) -> dict | None:
@@ -167,21 +156,33 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
         return {"jobs": 0}
     wall = float(df["end"].max() - df["start"].min())
     cpu = float(np.nansum(df["cpu_s"]))
-    threads = df["threads"] if "threads" in df else pd.Series(1, index=df.index)
-    core = float((df["seconds"] * threads).sum())
-    exact = int(df["cpu_exact"].sum()) if "cpu_exact" in df else 0
+    core = float((df["seconds"] * df["threads"]).sum())
     chain = blocking_chain(df)
     per_rule = df.groupby("rule").agg(count=("seconds", "count"), sum=("seconds", "sum"), max=("seconds", "max"),
                                       cpu=("cpu_s", "sum")).sort_values("sum", ascending=False)
     return {"jobs": int(len(df)), "cores": int(cores), "wall_s": wall, "job_s": float(df["seconds"].sum()),
             "job_core_s": core, "idle_core_s": max(0.0, cores * wall - core),
             "utilisation": core / (cores * wall) if wall > 0 else math.nan,
-            "cpu_s": cpu, "cpu_exact_jobs": exact, "job_core_off_cpu_s": max(0.0, core - cpu),
+            "cpu_s": cpu, "cpu_exact_jobs": int(df["cpu_exact"].sum()), "job_core_off_cpu_s": max(0.0, core - cpu),
             "chain": [{"job": r.job, "rule": r.rule, "start_s": float(r.start - df["start"].min()),
                        "seconds": float(r.seconds)} for r in chain.itertuples()],
             "chain_s": float(chain["seconds"].sum()),
             "per_rule": {k: {"jobs": int(v["count"]), "sum_s": float(v["sum"]), "max_s": float(v["max"]),
                              "cpu_s": float(v["cpu"])} for k, v in per_rule.iterrows()}}
+
+
+def summary_lines(s: dict) -> list[str]:
+    """The headline of a `run_summary`: wall, job time and idle core-time; CPU in jobs and where it
+    came from; the blocking chain's rules (three lines, minutes)."""
+    if not s.get("jobs"):
+        return ["no benchmark files: no jobs ran"]
+    return [f"{s['jobs']} jobs on {s['cores']} cores: wall {s['wall_s'] / 60:.1f} min, job time {s['job_s'] / 60:.1f} "
+            f"min, idle core-time {s['idle_core_s'] / 60:.1f} min (no job on the core; {100 * s['utilisation']:.0f} % "
+            "of the core-time held by jobs)",
+            f"CPU in jobs {s['cpu_s'] / 60:.1f} min ({s['cpu_exact_jobs']} of {s['jobs']} jobs from their own exact "
+            "records, the rest from Snakemake's sampled cpu_time, which misses up to 30 s a job), "
+            f"{s['job_core_off_cpu_s'] / 60:.1f} min of job core-time off that CPU (waiting, interpreter exits)",
+            f"blocking chain ({s['chain_s'] / 60:.1f} min of jobs): " + " -> ".join(c["rule"] for c in s["chain"])]
 
 
 def plot_gantt(df: pd.DataFrame, out_png, cores: int, title: str = "workflow run") -> Path:

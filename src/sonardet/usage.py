@@ -1,0 +1,48 @@
+"""A workflow job's exact CPU record: written by the job when it ends (`sonardet.workflow`), read by
+the run's time line (`sonardet.report.timeline`). Standard library only, so every job can afford it.
+
+Snakemake's benchmark files sample a job's CPU time (every second for its first 30 s, then every
+30 s), so a long job's `cpu_time` misses up to 30 s; the record a job writes at its end counts all
+of its CPU up to then, imports included (the interpreter's shutdown after it, a fraction of a
+second, is not in it). The workflow's log and benchmark files share their relative paths
+(`results/logs/X.log`, `results/benchmarks/X.tsv`); the record is `results/logs/X.usage.json`.
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+from pathlib import Path
+
+__all__ = ["cpu_seconds", "job_usage", "read_usage", "usage_path"]
+
+
+def cpu_seconds(who: int = resource.RUSAGE_SELF) -> float:
+    """User + system CPU seconds of this process (RUSAGE_SELF) or of its finished children (RUSAGE_CHILDREN)."""
+    r = resource.getrusage(who)
+    return r.ru_utime + r.ru_stime
+
+
+def usage_path(log_path) -> Path:
+    """Where the job with log `log_path` records its usage: the log's path with `.usage.json` for its suffix."""
+    return Path(log_path).with_suffix(".usage.json")
+
+
+def job_usage(threads: int) -> dict:
+    """This process's CPU seconds so far (its imports included) plus those of its finished children
+    (e.g. tile workers), and the threads the job was given."""
+    return {"cpu_s": cpu_seconds(resource.RUSAGE_SELF) + cpu_seconds(resource.RUSAGE_CHILDREN),
+            "threads": int(threads)}
+
+
+def read_usage(path) -> dict | None:
+    """The record at `path` as {"cpu_s", "threads" (>= 1)}, or None where there is none; a record that
+    cannot be read is refused (ValueError naming the file)."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        rec = json.loads(path.read_text())
+        return {"cpu_s": float(rec["cpu_s"]), "threads": max(1, int(rec.get("threads", 1)))}
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: not a job's usage record ({exc}); delete it and rerun its job") from None
