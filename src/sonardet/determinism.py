@@ -8,8 +8,10 @@ path from the CPU it finds at run time:
   chooses its kernels per CPU model (Haswell, Zen, SkylakeX with AVX-512, ...), and kernels sum in
   different orders. Measured here: forcing the Sandy Bridge kernels instead of the Haswell ones
   changes the object meshes, the templates and every scene; the settled poses then drift (MuJoCo's
-  contact dynamics amplify last-bit differences). ``OPENBLAS_CORETYPE=Haswell`` pins the kernels on
-  every x86-64 CPU with AVX2 and FMA (all current server CPUs), ``OPENBLAS_NUM_THREADS`` the threads;
+  contact dynamics amplify last-bit differences). On an AVX-512 CPU OpenBLAS picks its SkylakeX
+  kernels, and the meshes and scenes change too (measured with tests/repro_scene.py).
+  ``OPENBLAS_CORETYPE=Haswell`` pins the kernels on every x86-64 CPU with AVX2 and FMA (all current
+  server CPUs), ``OPENBLAS_NUM_THREADS`` the threads;
 * numpy dispatches some loops (sorting, transcendental functions) to AVX-512 code when the CPU has it:
   ``NPY_DISABLE_CPU_FEATURES`` keeps the AVX2 loops everywhere;
 * PyTorch (SASA): ATen's vector kernels (``ATEN_CPU_CAPABILITY``), MKL (``MKL_CBWR``, conditional
