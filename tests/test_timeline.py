@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from sonardet.report.timeline import blocking_chain, read_benchmarks, run_summary
+from sonardet.report.timeline import blocking_chain, read_benchmarks, run_summary, summary_lines
 from sonardet.usage import job_usage, usage_path
 from sonardet.workflow import rule_logging
 
@@ -40,7 +40,9 @@ def test_a_job_records_its_cpu_and_threads_at_its_end(tmp_path):
     rec = json.loads(usage_path(log).read_text())
     assert rec["threads"] == 3
     assert rec["cpu_s"] >= before + 0.2
-    assert "of CPU since it started" in log.read_text()
+    # the CPU before the job's work (here: this test process so far) excludes what the job burnt
+    assert before - 0.05 <= rec["startup_cpu_s"] <= rec["cpu_s"] - 0.2
+    assert "of CPU since it started" in log.read_text() and "before the job's work" in log.read_text()
 
 
 def test_a_failed_job_leaves_no_record(tmp_path):
@@ -58,7 +60,7 @@ def test_exact_records_replace_the_sampled_cpu_and_threads_count_in_the_idle_tim
     _bench(tmp_path, "detect/b.tsv", 50.0, 30.0, t0 + 100)
     rec = usage_path(tmp_path / "logs" / "train" / "m.log")
     rec.parent.mkdir(parents=True)
-    rec.write_text(json.dumps({"cpu_s": 95.0, "threads": 2}))
+    rec.write_text(json.dumps({"cpu_s": 95.0, "threads": 2, "startup_cpu_s": 1.5}))
     df = read_benchmarks(tmp_path / "benchmarks")
     row = df.set_index("job").loc["train/m"]
     assert row["cpu_s"] == 95.0 and bool(row["cpu_exact"]) and row["threads"] == 2
@@ -70,8 +72,10 @@ def test_exact_records_replace_the_sampled_cpu_and_threads_count_in_the_idle_tim
     assert s["utilisation"] == pytest.approx(290 / 300)
     assert s["cpu_s"] == pytest.approx(95 + 30 + 30) and s["cpu_exact_jobs"] == 1
     assert s["job_core_off_cpu_s"] == pytest.approx(290 - 155)
-    assert s["per_rule"]["detect"] == {"jobs": 2, "sum_s": 90.0, "max_s": 50.0, "cpu_s": 60.0}
-    assert s["per_rule"]["train"]["cpu_s"] == 95.0
+    assert s["per_rule"]["detect"] == {"jobs": 2, "sum_s": 90.0, "max_s": 50.0, "cpu_s": 60.0, "startup_cpu_s": 0.0}
+    assert s["per_rule"]["train"]["cpu_s"] == 95.0 and s["per_rule"]["train"]["startup_cpu_s"] == 1.5
+    assert s["startup_cpu_s"] == 1.5 and s["startup_jobs"] == 1  # the sampled jobs have no start-up figure
+    assert any("before the jobs' own work" in line and "1 jobs recorded it" in line for line in summary_lines(s))
     assert list(blocking_chain(df)["job"])[-1] in {"train/m", "detect/b"}
 
 

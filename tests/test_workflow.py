@@ -253,10 +253,16 @@ def test_every_job_records_its_exact_cpu(smoke_run):
     missing = df.loc[~df["cpu_exact"].astype(bool), "job"].tolist()
     assert not missing, missing
     assert (df["cpu_s"] > 0).all() and (df["threads"] >= 1).all()
+    # the CPU before a job's own work (interpreter, imports) is part of its CPU, and a job that runs
+    # no method imports no method registry: its start-up stays well under a heavy job's
+    assert (df["startup_cpu_s"] > 0).all() and (df["startup_cpu_s"] <= df["cpu_s"]).all()
+    startup = df.groupby("rule")["startup_cpu_s"].median()
+    assert startup["evaluate"] < 0.5 * startup["simulate_scene"], startup.to_dict()
     kids = json.loads((smoke_run / "results/benchmarks/snakemake_process.json").read_text())["children_cpu_s"]
     assert df["cpu_s"].sum() <= kids * 1.01 + 1.0
     summary = json.loads((smoke_run / "results/report/timeline.json").read_text())
     assert summary["cpu_exact_jobs"] == summary["jobs"] and summary["idle_core_s"] >= 0
+    assert summary["startup_jobs"] == summary["jobs"] and 0 < summary["startup_cpu_s"] < summary["cpu_s"]
 
 
 def test_toy_method_from_a_plugin(smoke_run):

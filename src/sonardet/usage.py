@@ -28,21 +28,28 @@ def usage_path(log_path) -> Path:
     return Path(log_path).with_suffix(".usage.json")
 
 
-def job_usage(threads: int) -> dict:
+def job_usage(threads: int, startup_cpu_s: float | None = None) -> dict:
     """This process's CPU seconds so far (its imports included) plus those of its finished children
-    (e.g. tile workers), and the threads the job was given."""
-    return {"cpu_s": cpu_seconds(resource.RUSAGE_SELF) + cpu_seconds(resource.RUSAGE_CHILDREN),
-            "threads": int(threads)}
+    (e.g. tile workers), the threads the job was given and, when given, `startup_cpu_s`: the CPU
+    seconds the process had spent when the job's own work began (interpreter start, Snakemake's
+    script preamble, imports)."""
+    rec = {"cpu_s": cpu_seconds(resource.RUSAGE_SELF) + cpu_seconds(resource.RUSAGE_CHILDREN),
+           "threads": int(threads)}
+    if startup_cpu_s is not None:
+        rec["startup_cpu_s"] = float(startup_cpu_s)
+    return rec
 
 
 def read_usage(path) -> dict | None:
-    """The record at `path` as {"cpu_s", "threads" (>= 1)}, or None where there is none; a record that
-    cannot be read is refused (ValueError naming the file)."""
+    """The record at `path` as {"cpu_s", "threads" (>= 1), "startup_cpu_s" (NaN in records written
+    before it was kept)}, or None where there is none; a record that cannot be read is refused
+    (ValueError naming the file)."""
     path = Path(path)
     if not path.is_file():
         return None
     try:
         rec = json.loads(path.read_text())
-        return {"cpu_s": float(rec["cpu_s"]), "threads": max(1, int(rec.get("threads", 1)))}
+        return {"cpu_s": float(rec["cpu_s"]), "threads": max(1, int(rec.get("threads", 1))),
+                "startup_cpu_s": float(rec.get("startup_cpu_s", "nan"))}
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{path}: not a job's usage record ({exc}); delete it and rerun its job") from None

@@ -14,12 +14,15 @@ import time
 import traceback
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .determinism import ISA_PINNED, THREAD_VARIABLES
 from .io.atomic import atomic_write_text
-from .methods import Method, Resources
 from .plugins import load_plugins
-from .usage import job_usage, usage_path
+from .usage import cpu_seconds, job_usage, usage_path
+
+if TYPE_CHECKING:
+    from .methods import Method, Resources
 
 
 @contextmanager
@@ -35,15 +38,15 @@ def rule_logging(smk, name: str):
     pinned = {k: os.environ[k] for k in (*THREAD_VARIABLES, *ISA_PINNED) if k in os.environ}
     log.info("numerical environment (sonardet.determinism): %s",
              ", ".join(f"{k}={v}" for k, v in pinned.items()) or "not pinned")
-    t0 = time.perf_counter()
+    t0, startup_cpu_s = time.perf_counter(), cpu_seconds()
     try:
         yield log
     except Exception:
         log.error("failed:\n%s", traceback.format_exc())
         raise
-    usage = job_usage(_threads(smk))
-    log.info("done in %.2f s (the job's process: %.2f s of CPU since it started)", time.perf_counter() - t0,
-             usage["cpu_s"])
+    usage = job_usage(_threads(smk), startup_cpu_s)
+    log.info("done in %.2f s (the job's process: %.2f s of CPU since it started, %.2f s of it before the "
+             "job's work: interpreter, imports)", time.perf_counter() - t0, usage["cpu_s"], startup_cpu_s)
     if getattr(smk, "log", None):
         atomic_write_text(usage_path(smk.log[0]), json.dumps(usage) + "\n")  # exact CPU (sonardet.usage)
 
@@ -63,6 +66,8 @@ def job(smk, name: str):
 
 def job_method(smk) -> Method:
     """The Method a job runs (the rule's `params.method`)."""
+    from .methods import Method  # here, not at the top: most jobs run no method, and the registry is heavy
+
     return Method.from_dict(smk.params.method)
 
 
@@ -70,6 +75,7 @@ def job_resources(smk, method: Method | None = None) -> Resources:
     """A job's Resources from its named inputs: `meta` (object JSONs, meshes beside them) -> object
     models, `templates` -> template scans, `model` -> the trained model file; threads from the job."""
     from .io.templates import read_templates
+    from .methods import Resources
     from .objects import read_object
 
     inp = smk.input

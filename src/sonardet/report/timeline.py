@@ -70,9 +70,10 @@ def read_benchmarks(root, logs=None) -> pd.DataFrame:
         rows.append({"rule": rel.parts[0] if len(rel.parts) > 1 else rel.stem,
                      "job": str(rel.with_suffix("")), "start": end - s, "end": end, "seconds": s,
                      "cpu_s": float(cpu) if rec is None else rec["cpu_s"], "cpu_exact": rec is not None,
-                     "threads": 1 if rec is None else rec["threads"], "max_rss_mb": float(rss)})
+                     "threads": 1 if rec is None else rec["threads"],
+                     "startup_cpu_s": math.nan if rec is None else rec["startup_cpu_s"], "max_rss_mb": float(rss)})
     df = pd.DataFrame(rows, columns=["rule", "job", "start", "end", "seconds", "cpu_s", "cpu_exact", "threads",
-                                     "max_rss_mb"])
+                                     "startup_cpu_s", "max_rss_mb"])
     return df.sort_values(["start", "job"]).reset_index(drop=True)
 
 
@@ -150,8 +151,9 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
     (s, each job's wall seconds x its threads), idle core-time (cores x wall - job core-time, s: no job
     on the core), utilisation (job core-time / (cores x wall)), CPU time (s; `cpu_exact_jobs` of the
     jobs from their usage records, the others sampled by Snakemake, see the module doc) and the job
-    core-time not spent on a CPU, jobs, the blocking chain's rules and seconds, and the seconds per
-    rule (sum, sorted)."""
+    core-time not spent on a CPU, the CPU seconds spent before the jobs' own work (interpreter start,
+    imports; summed over the `startup_jobs` whose record has it), jobs, the blocking chain's rules and
+    seconds, and the seconds per rule (sum, sorted)."""
     if df.empty:
         return {"jobs": 0}
     wall = float(df["end"].max() - df["start"].min())
@@ -159,16 +161,20 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
     core = float((df["seconds"] * df["threads"]).sum())
     chain = blocking_chain(df)
     per_rule = df.groupby("rule").agg(count=("seconds", "count"), sum=("seconds", "sum"), max=("seconds", "max"),
-                                      cpu=("cpu_s", "sum")).sort_values("sum", ascending=False)
+                                      cpu=("cpu_s", "sum"), startup=("startup_cpu_s", "sum"),
+                                      ).sort_values("sum", ascending=False)
     return {"jobs": int(len(df)), "cores": int(cores), "wall_s": wall, "job_s": float(df["seconds"].sum()),
             "job_core_s": core, "idle_core_s": max(0.0, cores * wall - core),
             "utilisation": core / (cores * wall) if wall > 0 else math.nan,
             "cpu_s": cpu, "cpu_exact_jobs": int(df["cpu_exact"].sum()), "job_core_off_cpu_s": max(0.0, core - cpu),
+            "startup_cpu_s": float(np.nansum(df["startup_cpu_s"])),
+            "startup_jobs": int(df["startup_cpu_s"].notna().sum()),
             "chain": [{"job": r.job, "rule": r.rule, "start_s": float(r.start - df["start"].min()),
                        "seconds": float(r.seconds)} for r in chain.itertuples()],
             "chain_s": float(chain["seconds"].sum()),
             "per_rule": {k: {"jobs": int(v["count"]), "sum_s": float(v["sum"]), "max_s": float(v["max"]),
-                             "cpu_s": float(v["cpu"])} for k, v in per_rule.iterrows()}}
+                             "cpu_s": float(v["cpu"]), "startup_cpu_s": float(v["startup"])}
+                         for k, v in per_rule.iterrows()}}
 
 
 def summary_lines(s: dict) -> list[str]:
@@ -182,6 +188,8 @@ def summary_lines(s: dict) -> list[str]:
             f"CPU in jobs {s['cpu_s'] / 60:.1f} min ({s['cpu_exact_jobs']} of {s['jobs']} jobs from their own exact "
             "records, the rest from Snakemake's sampled cpu_time, which misses up to 30 s a job), "
             f"{s['job_core_off_cpu_s'] / 60:.1f} min of job core-time off that CPU (waiting, interpreter exits)",
+            *([f"of that CPU, {s['startup_cpu_s'] / 60:.1f} min before the jobs' own work (interpreter start, imports; "
+               f"{s['startup_jobs']} jobs recorded it)"] if s.get("startup_jobs") else []),
             f"blocking chain ({s['chain_s'] / 60:.1f} min of jobs): " + " -> ".join(c["rule"] for c in s["chain"])]
 
 
