@@ -72,7 +72,7 @@ def main() -> int:
     # Every job of the finished run, its last one (run_timeline) included: it is part of the run's wall time.
     df = read_benchmarks(Path(args.results) / "benchmarks")
     s = run_summary(df, args.cores)
-    print("\n".join(summary_lines(s)[:2]))
+    print("\n".join(summary_lines(s)[:-1]))  # its own chain lines follow
     proc = read_process_usage(Path(args.results) / "benchmarks")
     if proc is not None:
         s["snakemake_process"] = proc

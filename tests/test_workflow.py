@@ -238,6 +238,7 @@ def test_snakemake_process_usage_is_recorded(smoke_run):
     proc = subprocess.run([sys.executable, str(REPO / "benchmarks/workflow.py"), "--results",
                            str(smoke_run / "results")], capture_output=True, text=True, check=True)
     assert "Snakemake process (success): own CPU" in proc.stdout, proc.stdout
+    assert "before the jobs' own work (interpreter start, imports" in proc.stdout, proc.stdout
     # The onstart handler found Snakemake's job-start rate limiter and removed it (a local run).
     assert "job-start rate limit lifted" in (smoke_run / "snakemake_output.txt").read_text()
 
