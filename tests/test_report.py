@@ -417,6 +417,22 @@ def test_results_readme_links_and_machine(run, tmp_path):
     assert "## comparison" in text and "| SASA (study) |" in text
     assert "![pareto](../figures/pareto.png)" in text
     assert "abc123" in text and f"**cpu_cores**: {info['cpu_cores']}" in text
+    assert f"**cpu_vector_isa**: {info['cpu_vector_isa']}" in text and "**numerical_environment**" in text
+
+
+def test_the_machine_section_names_the_vector_extension_and_the_pinned_environment(monkeypatch):
+    from sonardet.report.summary import vector_isa
+
+    assert vector_isa({"sse4_2", "avx", "avx2", "fma", "avx512f"}) == "AVX-512"
+    assert vector_isa({"sse4_2", "avx", "avx2", "fma"}) == "AVX2"
+    assert vector_isa({"sse4_2", "avx", "avx2"}) == "AVX"  # AVX2 without FMA: not what the pin needs
+    assert vector_isa(set()) == "none known"
+    monkeypatch.setenv("OPENBLAS_CORETYPE", "Haswell")
+    assert "OPENBLAS_CORETYPE=Haswell" in machine_info()["numerical_environment"]
+    for name in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPABILITY", "MKL_CBWR",
+                 "ONEDNN_MAX_CPU_ISA", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(name, raising=False)
+    assert machine_info()["numerical_environment"] == "not pinned"
 
 
 def test_load_metrics_rejects_foreign_files(tmp_path):

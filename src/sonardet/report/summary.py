@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..determinism import ISA_PINNED, THREAD_VARIABLES, cpu_flags
 from ..io.atomic import atomic_write_text
 from .tables import markdown_table
 
@@ -37,6 +38,27 @@ def _cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown"
 
 
+def vector_isa(flags: set[str]) -> str:
+    """The widest x86 vector extension among the CPU's feature `flags` ('AVX-512', 'AVX2' with FMA,
+    'AVX', 'SSE4.2'), or 'none known' (another architecture, or flags not readable). Outputs are
+    byte-stable only between machines of the same extension (README, reproducibility)."""
+    if "avx512f" in flags:
+        return "AVX-512"
+    if {"avx2", "fma"} <= flags:
+        return "AVX2"
+    for flag, name in (("avx", "AVX"), ("sse4_2", "SSE4.2")):
+        if flag in flags:
+            return name
+    return "none known"
+
+
+def _numerical_environment() -> str:
+    """The pinned variables of `sonardet.determinism` this process runs with (a workflow job inherits
+    the run's), or 'not pinned'."""
+    pinned = [f"{k}={os.environ[k]}" for k in (*THREAD_VARIABLES, *ISA_PINNED) if k in os.environ]
+    return ", ".join(pinned) or "not pinned"
+
+
 def _ram_gb() -> float | None:
     try:
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
@@ -45,9 +67,10 @@ def _ram_gb() -> float | None:
 
 
 def machine_info() -> dict:
-    """The machine a run is on: cpu_cores (usable by this process), cpu_model, ram_gb (GiB), os,
-    python, and versions of the main libraries (None when not installed; read from package metadata,
-    nothing is imported)."""
+    """The machine a run is on: cpu_cores (usable by this process), cpu_model, cpu_vector_isa (its
+    widest vector extension), numerical_environment (the pinned thread counts and instruction-set
+    paths, `sonardet.determinism`), ram_gb (GiB), os, python, and versions of the main libraries
+    (None when not installed; read from package metadata, nothing is imported)."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:
@@ -56,6 +79,8 @@ def machine_info() -> dict:
     return {
         "cpu_cores": cores,
         "cpu_model": _cpu_model(),
+        "cpu_vector_isa": vector_isa(cpu_flags()),
+        "numerical_environment": _numerical_environment(),
         "ram_gb": round(ram, 1) if ram is not None else None,
         "os": f"{platform.system()} {platform.release()}",
         "python": platform.python_version(),
