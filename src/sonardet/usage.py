@@ -14,13 +14,19 @@ import json
 import resource
 from pathlib import Path
 
-__all__ = ["cpu_seconds", "job_usage", "read_usage", "usage_path"]
+__all__ = ["cpu_seconds", "job_cpu_seconds", "job_usage", "read_usage", "usage_path"]
 
 
 def cpu_seconds(who: int = resource.RUSAGE_SELF) -> float:
     """User + system CPU seconds of this process (RUSAGE_SELF) or of its finished children (RUSAGE_CHILDREN)."""
     r = resource.getrusage(who)
     return r.ru_utime + r.ru_stime
+
+
+def job_cpu_seconds() -> float:
+    """CPU seconds of this process so far (its imports included) plus those of its finished children
+    (e.g. tile workers): what a job's record counts."""
+    return cpu_seconds(resource.RUSAGE_SELF) + cpu_seconds(resource.RUSAGE_CHILDREN)
 
 
 def usage_path(log_path) -> Path:
@@ -33,8 +39,7 @@ def job_usage(threads: int, startup_cpu_s: float | None = None) -> dict:
     (e.g. tile workers), the threads the job was given and, when given, `startup_cpu_s`: the CPU
     seconds the process had spent when the job's own work began (interpreter start, Snakemake's
     script preamble, imports)."""
-    rec = {"cpu_s": cpu_seconds(resource.RUSAGE_SELF) + cpu_seconds(resource.RUSAGE_CHILDREN),
-           "threads": int(threads)}
+    rec = {"cpu_s": job_cpu_seconds(), "threads": int(threads)}
     if startup_cpu_s is not None:
         rec["startup_cpu_s"] = float(startup_cpu_s)
     return rec

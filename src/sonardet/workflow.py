@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 from .determinism import ISA_PINNED, THREAD_VARIABLES
 from .io.atomic import atomic_write_text
 from .plugins import load_plugins
-from .usage import cpu_seconds, job_usage, usage_path
+from .usage import job_cpu_seconds, job_usage, usage_path
 
 if TYPE_CHECKING:
     from .methods import Method, Resources
@@ -38,7 +38,7 @@ def rule_logging(smk, name: str):
     pinned = {k: os.environ[k] for k in (*THREAD_VARIABLES, *ISA_PINNED) if k in os.environ}
     log.info("numerical environment (sonardet.determinism): %s",
              ", ".join(f"{k}={v}" for k, v in pinned.items()) or "not pinned")
-    t0, startup_cpu_s = time.perf_counter(), cpu_seconds()
+    t0, startup_cpu_s = time.perf_counter(), job_cpu_seconds()
     try:
         yield log
     except Exception:
