@@ -35,7 +35,7 @@ import os
 import platform
 import sys
 
-__all__ = ["ISA_PINNED", "THREAD_VARIABLES", "apply", "cpu_flags", "pinned_environment"]
+__all__ = ["ISA_PINNED", "THREAD_VARIABLES", "apply", "cpu_flags", "describe", "pinned_environment"]
 
 #: Variables that fix the thread counts of the numerical libraries (value: the job's threads).
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -81,6 +81,13 @@ def apply(environ=None, threads: int = 1) -> dict[str, str]:
     for name, value in pinned_environment(threads).items():
         environ.setdefault(name, value)
     return {name: environ[name] for name in (*THREAD_VARIABLES, *ISA_PINNED) if name in environ}
+
+
+def describe(environ=None) -> str:
+    """The variables of `pinned_environment` set in `environ` (default: ``os.environ``; a workflow job
+    inherits the run's) as 'NAME=value, ...', or 'not pinned': for job logs and the report."""
+    environ = os.environ if environ is None else environ
+    return ", ".join(f"{k}={environ[k]}" for k in (*THREAD_VARIABLES, *ISA_PINNED) if k in environ) or "not pinned"
 
 
 if __name__ == "__main__":  # `eval "$(python -m sonardet.determinism)"`: export the variables in a shell

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import sys
 import time
 import traceback
@@ -16,7 +15,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .determinism import ISA_PINNED, THREAD_VARIABLES
+from .determinism import describe
 from .io.atomic import atomic_write_text
 from .plugins import load_plugins
 from .usage import job_cpu_seconds, job_usage, usage_path
@@ -35,9 +34,7 @@ def rule_logging(smk, name: str):
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s: %(message)s",
                         handlers=handlers, force=True)
     log = logging.getLogger(f"sonardet.{name}")
-    pinned = {k: os.environ[k] for k in (*THREAD_VARIABLES, *ISA_PINNED) if k in os.environ}
-    log.info("numerical environment (sonardet.determinism): %s",
-             ", ".join(f"{k}={v}" for k, v in pinned.items()) or "not pinned")
+    log.info("numerical environment (sonardet.determinism): %s", describe())
     t0, startup_cpu_s = time.perf_counter(), job_cpu_seconds()
     try:
         yield log

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..determinism import ISA_PINNED, THREAD_VARIABLES, cpu_flags
+from ..determinism import cpu_flags, describe as describe_pinned
 from ..io.atomic import atomic_write_text
 from .tables import markdown_table
 
@@ -52,13 +52,6 @@ def vector_isa(flags: set[str]) -> str:
     return "none known"
 
 
-def _numerical_environment() -> str:
-    """The pinned variables of `sonardet.determinism` this process runs with (a workflow job inherits
-    the run's), or 'not pinned'."""
-    pinned = [f"{k}={os.environ[k]}" for k in (*THREAD_VARIABLES, *ISA_PINNED) if k in os.environ]
-    return ", ".join(pinned) or "not pinned"
-
-
 def _ram_gb() -> float | None:
     try:
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
@@ -80,7 +73,7 @@ def machine_info() -> dict:
         "cpu_cores": cores,
         "cpu_model": _cpu_model(),
         "cpu_vector_isa": vector_isa(cpu_flags()),
-        "numerical_environment": _numerical_environment(),
+        "numerical_environment": describe_pinned(),
         "ram_gb": round(ram, 1) if ram is not None else None,
         "os": f"{platform.system()} {platform.release()}",
         "python": platform.python_version(),
