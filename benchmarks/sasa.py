@@ -112,13 +112,13 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
     from sonardet.detect.sasa import DEFAULTS, STUDY, SASADetector, TrainedSASA, resolve_params
     from sonardet.detect.sasa.data import prepare_scene
     from sonardet.detect.sasa.ops import gpu_kernels, sampling
-    from sonardet.detect.sasa.trainer import _make_batch, peak_memory_mb, resolve_device
+    from sonardet.detect.sasa.trainer import _configure_process, _make_batch, peak_memory_mb, resolve_device
 
     if fps_loop:  # FPS on the PyTorch loop on every device (no compiled CPU kernel, no Triton kernel)
         sampling.kernels, gpu_kernels.AVAILABLE = None, False
-    torch.set_num_threads(threads)
     base = {"DEFAULTS": DEFAULTS, "STUDY": STUDY}[name]
-    params = resolve_params(overrides, base=base)
+    params = resolve_params({**overrides, "num_threads": threads}, base=base)
+    _configure_process(params)
     dev = resolve_device(device)
     bs = int(params["batch_size"])
     t0 = time.perf_counter()
@@ -168,6 +168,7 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
         "epoch_s_est": step_s * steps_per_epoch, "train_scenes": train_scenes, "epochs": int(params["epochs"]),
         "schedule_s_est": step_s * steps_per_epoch * int(params["epochs"]),
         "fps": "torch loop" if fps_loop else "default", "profile": profile,
+        "freed_memory_kept": bool(params["retain_freed_memory"]),
         "gpu": torch.cuda.get_device_name(dev) if dev.type == "cuda" else None, "torch": torch.__version__,
         **peak_memory_mb(dev),
     })
@@ -192,6 +193,9 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--configs", default="DEFAULTS,STUDY")
     ap.add_argument("--device", default=None, help="cpu or cuda (default: cpu, and cuda too if available)")
     ap.add_argument("--padded", action="store_true", help="grouped MLPs on the padded slots (compact_groups false)")
+    ap.add_argument("--system-malloc", action="store_true",
+                    help="leave glibc's allocator as it is (retain_freed_memory false: freed blocks go back to the "
+                         "system)")
     ap.add_argument("--synthetic", action="store_true", help="use synthetic scenes even if results/ has some")
     ap.add_argument("--fps-loop", action="store_true",
                     help="FPS on the PyTorch loop (not the compiled CPU kernel or the Triton CUDA kernel)")
@@ -200,7 +204,8 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     rows = []
-    overrides = {"progress": False, "compact_groups": not args.padded}
+    overrides = {"progress": False, "compact_groups": not args.padded,
+                 "retain_freed_memory": not args.system_malloc}
     with tempfile.TemporaryDirectory() as tmp:
         paths = [str(p) for p in _scene_paths(args.n_scenes, args.synthetic, Path(tmp))]
         ctx = mp.get_context("spawn")
@@ -224,7 +229,8 @@ def main(argv=None) -> list[dict]:
           f"torch threads {args.threads}, FPS {'on the PyTorch loop' if args.fps_loop else 'default'}, "
           f"scenes: {len(paths)} "
           f"({'synthetic' if 'syn' in Path(paths[0]).stem else 'results/scenes'}), grouped MLPs on "
-          f"{'padded slots' if args.padded else 'distinct neighbours'}, load average {os.getloadavg()[0]:.1f}")
+          f"{'padded slots' if args.padded else 'distinct neighbours'}, freed memory "
+          f"{'returned to the system' if args.system_malloc else 'kept'}, load average {os.getloadavg()[0]:.1f}")
     head = ("config", "device", "batch", "points", "params", "s/step", "s/scene(train)", "s/scene(infer)",
             "prep s/scene", f"epoch s ({args.train_scenes} sc.)", "schedule h", "peak RSS MB", "load")
     print(" | ".join(head))

@@ -271,6 +271,7 @@ DEFAULTS: dict = {
                                              # the compiled kernels use num_threads, one per cloud)
     "compact_groups": True,                  # grouped MLPs on distinct hits only (False: padded, bitwise as before)
     "progress": True,                        # tqdm progress bar
+    "retain_freed_memory": True,             # keep freed heap memory in the process (glibc; sonardet.allocator)
 }
 
 #: The study's SASA as published (blakechen97/SASA, OpenPCDet 3dssd_sasa KITTI config; reference/sasa.md):
@@ -325,7 +326,8 @@ STUDY.update({
 PRESETS = {"default": DEFAULTS, "study": STUDY}
 
 #: Keys that do not change what is learned (not compared when resuming or loading a model).
-RUNTIME_KEYS = frozenset({"num_threads", "sampling_threads", "compact_groups", "progress", "val_every_epochs",
+RUNTIME_KEYS = frozenset({"num_threads", "sampling_threads", "compact_groups", "progress", "retain_freed_memory",
+                          "val_every_epochs",
                           "early_stop_patience", "early_stop_min_delta", "early_stop_min_epoch_frac"})
 #: Keys used only after the network (may differ between training and inference).
 INFERENCE_KEYS = frozenset({"score_thresh", "nms_mode", "nms_iou", "nms_pre_max", "nms_post_max"})

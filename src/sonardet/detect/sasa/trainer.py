@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from ... import SCHEMA_VERSION
+from ...allocator import retain_freed_memory
 from ...seeds import derive_seed
 from ...io.artifacts import FileReadError, reading, rebuild_hint
 from ...io.atomic import atomic_outputs, atomic_path, atomic_write_text
@@ -89,9 +90,12 @@ def peak_memory_mb(device: torch.device | None = None) -> dict:
     return out
 
 
-def _set_threads(params: dict) -> None:
+def _configure_process(params: dict) -> None:
+    """Torch's CPU threads (``num_threads``) and the allocator (``retain_freed_memory``) of this process."""
     if params.get("num_threads"):
         torch.set_num_threads(int(params["num_threads"]))
+    if params.get("retain_freed_memory", True):
+        retain_freed_memory()
 
 
 def _rng(seed: int, *keys) -> np.random.Generator:
@@ -263,7 +267,7 @@ class TrainedSASA:
         model's) and set torch's CPU threads when ``params`` sets ``num_threads``."""
         device = resolve_device(device)
         model, eff = read_model(model_path, params, device)
-        _set_threads(eff)
+        _configure_process(eff)
         return cls(model, eff, device)
 
     @property
@@ -556,7 +560,7 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
     """
     params = resolve_params(params)
     device = resolve_device(device)
-    _set_threads(params)
+    _configure_process(params)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     train_paths = sorted(str(p) for p in train_scene_paths)
