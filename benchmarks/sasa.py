@@ -106,16 +106,18 @@ def _profile_step(step, dev, rows: int) -> str:
 
 
 def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: int, threads: int, device: str | None,
-            train_scenes: int, fps_loop: bool, profile_rows: int, q) -> None:
+            train_scenes: int, fps_loop: bool, profile_rows: int, parallel_min: int | None, q) -> None:
     import torch
 
     from sonardet.detect.sasa import DEFAULTS, STUDY, SASADetector, TrainedSASA, resolve_params
     from sonardet.detect.sasa.data import prepare_scene
-    from sonardet.detect.sasa.ops import gpu_kernels, sampling
+    from sonardet.detect.sasa.ops import gpu_kernels, kernels, sampling
     from sonardet.detect.sasa.trainer import _configure_process, _make_batch, peak_memory_mb, resolve_device
 
     if fps_loop:  # FPS on the PyTorch loop on every device (no compiled CPU kernel, no Triton kernel)
         sampling.kernels, gpu_kernels.AVAILABLE = None, False
+    if parallel_min is not None and kernels is not None:
+        kernels.PARALLEL_MIN_ELEMENTS = int(parallel_min)
     base = {"DEFAULTS": DEFAULTS, "STUDY": STUDY}[name]
     params = resolve_params({**overrides, "num_threads": threads}, base=base)
     _configure_process(params)
@@ -169,6 +171,7 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
         "schedule_s_est": step_s * steps_per_epoch * int(params["epochs"]),
         "fps": "torch loop" if fps_loop else "default", "profile": profile,
         "freed_memory_kept": bool(params["retain_freed_memory"]),
+        "kernels_parallel_min_elements": kernels.PARALLEL_MIN_ELEMENTS if kernels is not None else None,
         "gpu": torch.cuda.get_device_name(dev) if dev.type == "cuda" else None, "torch": torch.__version__,
         **peak_memory_mb(dev),
     })
@@ -196,6 +199,9 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--system-malloc", action="store_true",
                     help="leave glibc's allocator as it is (retain_freed_memory false: freed blocks go back to the "
                          "system)")
+    ap.add_argument("--parallel-min-elements", type=int, default=None, metavar="N",
+                    help="the fused batch-norm and segment-max kernels run in parallel on arrays of at least N "
+                         "values (default: sonardet's PARALLEL_MIN_ELEMENTS; 0: always)")
     ap.add_argument("--synthetic", action="store_true", help="use synthetic scenes even if results/ has some")
     ap.add_argument("--fps-loop", action="store_true",
                     help="FPS on the PyTorch loop (not the compiled CPU kernel or the Triton CUDA kernel)")
@@ -214,7 +220,7 @@ def main(argv=None) -> list[dict]:
                 q = ctx.Queue()
                 proc = ctx.Process(target=_worker, args=(name, overrides, paths, args.steps, args.warmup,
                                                          args.threads, device, args.train_scenes, args.fps_loop,
-                                                         args.profile, q))
+                                                         args.profile, args.parallel_min_elements, q))
                 proc.start()
                 row = q.get()
                 proc.join()
@@ -230,7 +236,8 @@ def main(argv=None) -> list[dict]:
           f"scenes: {len(paths)} "
           f"({'synthetic' if 'syn' in Path(paths[0]).stem else 'results/scenes'}), grouped MLPs on "
           f"{'padded slots' if args.padded else 'distinct neighbours'}, freed memory "
-          f"{'returned to the system' if args.system_malloc else 'kept'}, load average {os.getloadavg()[0]:.1f}")
+          f"{'returned to the system' if args.system_malloc else 'kept'}, fused kernels parallel from "
+          f"{rows[0]['kernels_parallel_min_elements']} values, load average {os.getloadavg()[0]:.1f}")
     head = ("config", "device", "batch", "points", "params", "s/step", "s/scene(train)", "s/scene(infer)",
             "prep s/scene", f"epoch s ({args.train_scenes} sc.)", "schedule h", "peak RSS MB", "load")
     print(" | ".join(head))

@@ -244,3 +244,45 @@ def test_fused_segment_max_is_bitwise_torch_segment_reduce():
         assert torch.equal(torch.nan_to_num(y, nan=-7.0), torch.nan_to_num(y_ref, nan=-7.0))
         assert torch.equal(torch.signbit(y), torch.signbit(y_ref))
         assert torch.equal(gi, g_ref)
+
+
+def test_fused_kernels_give_the_same_bits_on_one_thread_and_in_parallel():
+    """The batch-norm and segment-max kernels run their row chunks in parallel only on large arrays
+    (``kernels.run_parallel``); both paths must give the same numbers, bit for bit, since the chunks
+    fix the order of every sum. And the ReLU mask the backward recomputes from h is the forward's."""
+    from sonardet.detect.sasa.ops import kernels
+
+    rng = np.random.default_rng(3)
+    R, C, nchunks = 20_011, 24, 8
+    h = (rng.standard_normal((R, C)) * 2 + 0.5).astype(np.float32)
+    wn = rng.integers(1, 6, R).astype(np.float32)
+    wn /= wn.sum()
+    gamma = rng.uniform(-1.5, 1.5, C).astype(np.float32)
+    beta = rng.uniform(-0.5, 0.5, C).astype(np.float32)
+    gy = rng.standard_normal((R, C)).astype(np.float32)
+    offsets = np.concatenate([[0], np.cumsum(rng.integers(1, 9, 3000))])
+    offsets = offsets[offsets < R]
+    offsets[-1] = R
+    out = {}
+    for parallel in (True, False):
+        y, mean, var = kernels.weighted_bn_relu_forward(h, wn, gamma, beta, 1e-5, nchunks, parallel)
+        invstd = 1.0 / np.sqrt(var + 1e-5)
+        dh, dgamma, dbeta = kernels.weighted_bn_relu_backward(gy, h, wn, mean, var, invstd, gamma, beta, 1e-5,
+                                                              nchunks, parallel)
+        m = kernels.segment_max_forward(y, offsets, nchunks, parallel)
+        gm = kernels.segment_max_backward(gy[:len(offsets) - 1], m, y, offsets, nchunks, parallel)
+        out[parallel] = (y, mean, var, dh, dgamma, dbeta, m, gm)
+    for a, b in zip(out[True], out[False]):
+        assert a.tobytes() == b.tobytes()
+    # the backward's recomputed ReLU mask is the forward's (y > 0): against a float64 reference
+    y, mean, var, dh, dgamma, dbeta = out[True][:6]
+    invstd = 1.0 / np.sqrt(var + 1e-5)
+    g = np.where(y > 0, gy, 0).astype(np.float64)
+    xhat = (h.astype(np.float64) - mean) * invstd
+    sb, sg = g.sum(axis=0), (g * xhat).sum(axis=0)
+    want = gamma * invstd * (g - wn[:, None] * (sb + xhat * sg))
+    assert 0 < (y == 0).mean() < 1
+    np.testing.assert_allclose(dbeta, sb, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(dgamma, sg, rtol=1e-5)  # xhat in float32, as the forward
+    np.testing.assert_allclose(dh, want, rtol=1e-4, atol=1e-6 * np.abs(want).max())
+    assert not kernels.run_parallel(kernels.PARALLEL_MIN_ELEMENTS - 1)

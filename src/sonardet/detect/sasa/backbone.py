@@ -187,20 +187,23 @@ class _FusedWeightedBatchNormReLU(torch.autograd.Function):
     def forward(ctx, h, wn, gamma, beta, eps):
         chunks = kernels.parallel_chunks(torch.get_num_threads())
         y, mean, var = kernels.weighted_bn_relu_forward(h.detach().numpy(), wn.numpy(), gamma.detach().numpy(),
-                                                        beta.detach().numpy(), float(eps), chunks)
+                                                        beta.detach().numpy(), float(eps), chunks,
+                                                        kernels.run_parallel(h.numel()))
         y, mean, var = torch.from_numpy(y), torch.from_numpy(mean), torch.from_numpy(var)
-        ctx.save_for_backward(h, y, wn, gamma, mean, torch.rsqrt(var + eps))
+        ctx.save_for_backward(h, wn, gamma, beta, mean, var, torch.rsqrt(var + eps))
+        ctx.eps = float(eps)
         mean, var = mean.to(h.dtype), var.to(h.dtype)
         ctx.mark_non_differentiable(mean, var)
         return y, mean, var
 
     @staticmethod
     def backward(ctx, gy, _gmean, _gvar):
-        h, y, wn, gamma, mean, invstd = ctx.saved_tensors
+        h, wn, gamma, beta, mean, var, invstd = ctx.saved_tensors
         chunks = kernels.parallel_chunks(torch.get_num_threads())
-        dh, dgamma, dbeta = kernels.weighted_bn_relu_backward(gy.contiguous().numpy(), y.numpy(), h.detach().numpy(),
-                                                              wn.numpy(), mean.numpy(), invstd.numpy(),
-                                                              gamma.detach().numpy(), chunks)
+        dh, dgamma, dbeta = kernels.weighted_bn_relu_backward(gy.contiguous().numpy(), h.detach().numpy(), wn.numpy(),
+                                                              mean.numpy(), var.numpy(), invstd.numpy(),
+                                                              gamma.detach().numpy(), beta.detach().numpy(), ctx.eps,
+                                                              chunks, kernels.run_parallel(h.numel()))
         return torch.from_numpy(dh), None, torch.from_numpy(dgamma).to(h.dtype), torch.from_numpy(dbeta).to(h.dtype), None
 
 
@@ -218,7 +221,8 @@ class _FusedSegmentMax(torch.autograd.Function):
         offsets = torch.zeros(len(lengths) + 1, dtype=torch.int64)
         torch.cumsum(lengths, 0, out=offsets[1:])
         chunks = kernels.parallel_chunks(torch.get_num_threads())
-        out = torch.from_numpy(kernels.segment_max_forward(h.detach().numpy(), offsets.numpy(), chunks))
+        out = torch.from_numpy(kernels.segment_max_forward(h.detach().numpy(), offsets.numpy(), chunks,
+                                                           kernels.run_parallel(h.numel())))
         ctx.save_for_backward(h, out, offsets)
         return out
 
@@ -227,7 +231,7 @@ class _FusedSegmentMax(torch.autograd.Function):
         h, out, offsets = ctx.saved_tensors
         chunks = kernels.parallel_chunks(torch.get_num_threads())
         gi = kernels.segment_max_backward(g.contiguous().numpy(), out.numpy(), h.detach().numpy(), offsets.numpy(),
-                                          chunks)
+                                          chunks, kernels.run_parallel(h.numel()))
         return torch.from_numpy(gi), None
 
 

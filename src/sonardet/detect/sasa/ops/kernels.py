@@ -17,7 +17,8 @@ the dtype of the coordinates, one rounding per operation, no fused multiply-add)
 
 * **Weighted batch norm + ReLU** (:func:`weighted_bn_relu_forward` / ``_backward``): the compact
   grouped MLP's normalisation fused into two passes forward and two backward (float64 statistics),
-  parallel over row chunks with torch's thread count.
+  over row chunks (four per torch thread) that run in parallel on arrays of at least
+  ``PARALLEL_MIN_ELEMENTS`` values and one after the other below (the same numbers either way).
 * **Segment max** (:func:`segment_max_forward` / ``_backward``): the max over each centre's
   contiguous rows (``torch.segment_reduce(..., "max")``) and its gradient with PyTorch's CPU
   semantics (NaN wins; the gradient goes to every row equal to the max, and where two or more tie,
@@ -37,7 +38,8 @@ import numpy as np
 from ....jit import numba  # the fork-safe threading layer (see sonardet.jit)
 
 __all__ = ["FPS_BLOCK", "fps_kernel", "ball_query_kernel", "grid_cell", "weighted_bn_relu_forward",
-           "weighted_bn_relu_backward", "segment_max_forward", "segment_max_backward", "parallel_chunks"]
+           "weighted_bn_relu_backward", "segment_max_forward", "segment_max_backward", "parallel_chunks",
+           "run_parallel", "PARALLEL_MIN_ELEMENTS"]
 
 #: Points per FPS block (bounding-box test granularity).
 FPS_BLOCK = 64
@@ -323,19 +325,36 @@ def grid_cell(r_max: float, scale: float, n_points: int, extent: float) -> float
     return max(cell, extent / math.sqrt(4.0 * max(n_points, 1)))
 
 
+@numba.njit(**_JIT)
+def _weighted_sums_rows(h, wn, centre, s1, s2, lo, hi):
+    """Adds the weighted sums of (h - centre) and (h - centre)^2 over rows lo:hi into s1, s2 (C,)."""
+    C = h.shape[1]
+    for i in range(lo, hi):
+        w = np.float64(wn[i])
+        for c in range(C):
+            d = np.float64(h[i, c]) - centre[c]
+            s1[c] += w * d
+            s2[c] += w * d * d
+
+
 @numba.njit(**_JIT_PAR)
-def _weighted_sums(h, wn, centre, nchunks):
+def _weighted_sums_parallel(h, wn, centre, s1, s2):
+    R, n = h.shape[0], s1.shape[0]
+    for k in numba.prange(n):
+        _weighted_sums_rows(h, wn, centre, s1[k], s2[k], k * R // n, (k + 1) * R // n)
+
+
+@numba.njit(**_JIT)
+def _weighted_sums(h, wn, centre, nchunks, parallel):
     """Per-chunk weighted column sums of (h - centre) and (h - centre)^2 (float64, (nchunks, C) each)."""
     R, C = h.shape
     s1 = np.zeros((nchunks, C))
     s2 = np.zeros((nchunks, C))
-    for k in numba.prange(nchunks):
-        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
-            w = np.float64(wn[i])
-            for c in range(C):
-                d = np.float64(h[i, c]) - centre[c]
-                s1[k, c] += w * d
-                s2[k, c] += w * d * d
+    if parallel:
+        _weighted_sums_parallel(h, wn, centre, s1, s2)
+    else:
+        for k in range(nchunks):
+            _weighted_sums_rows(h, wn, centre, s1[k], s2[k], k * R // nchunks, (k + 1) * R // nchunks)
     return s1, s2
 
 
@@ -365,19 +384,45 @@ def _provisional_mean(h, wn):
     return plain / max(n, 1)
 
 
+@numba.njit(cache=True, nogil=True)
+def _bn_affine(mean, var, gamma, beta, eps):
+    """The float32 scale and offset (C,) of the normalised, affine output ``h * scale + offset`` (the
+    forward's, and the backward's recomputation of its ReLU mask: one function, so the same bits)."""
+    inv = gamma.astype(np.float64) / np.sqrt(var + eps)
+    return inv.astype(np.float32), (beta.astype(np.float64) - mean * inv).astype(np.float32)
+
+
+@numba.njit(**_JIT)
+def _bn_relu_rows(h, scale, offset, y, lo, hi):
+    C = h.shape[1]
+    for i in range(lo, hi):
+        for c in range(C):
+            v = h[i, c] * scale[c] + offset[c]
+            y[i, c] = v if v > 0 else np.float32(0.0)
+
+
 @numba.njit(**_JIT_PAR)
-def weighted_bn_relu_forward(h, wn, gamma, beta, eps, nchunks):
+def _bn_relu_parallel(h, scale, offset, y, nchunks):
+    R = h.shape[0]
+    for k in numba.prange(nchunks):
+        _bn_relu_rows(h, scale, offset, y, k * R // nchunks, (k + 1) * R // nchunks)
+
+
+@numba.njit(**_JIT)
+def weighted_bn_relu_forward(h, wn, gamma, beta, eps, nchunks, parallel=True):
     """Fused weighted batch norm + ReLU over rows h (R, C) float32 with row weights wn (R,) summing to 1.
 
     Returns (y (R, C) float32, mean (C,) float64, biased variance (C,) float64). The statistics are
     accumulated in float64 around a provisional mean (the weighted mean of at most
     `PROVISIONAL_MEAN_ROWS` evenly strided rows: any value near the mean keeps the centred sums from
     cancelling, and a sample costs a fraction of a pass over all rows), then corrected by the centred
-    sums' own mean: one pass over h for the statistics, one for the output.
+    sums' own mean: one pass over h for the statistics, one for the output. The rows are cut into
+    ``nchunks`` chunks, which fix the order of the sums; ``parallel`` runs the chunks on Numba's
+    threads, else one after the other on the calling thread (the same numbers either way).
     """
     R, C = h.shape
     mean0 = _provisional_mean(h, wn)
-    s1, s2 = _weighted_sums(h, wn, mean0, nchunks)
+    s1, s2 = _weighted_sums(h, wn, mean0, nchunks, parallel)
     # Divided by the weights' own float64 sum (1 up to float32 rounding), so the result does not
     # depend on the provisional mean.
     wsum = wn.astype(np.float64).sum()
@@ -385,98 +430,183 @@ def weighted_bn_relu_forward(h, wn, gamma, beta, eps, nchunks):
     shift = s1.sum(axis=0) / wsum
     mean = mean0 + shift
     var = np.maximum(s2.sum(axis=0) / wsum - shift * shift, 0.0)
-    scale = (gamma.astype(np.float64) / np.sqrt(var + eps)).astype(np.float32)
-    offset = (beta.astype(np.float64) - mean * (gamma.astype(np.float64) / np.sqrt(var + eps))).astype(np.float32)
+    scale, offset = _bn_affine(mean, var, gamma, beta, eps)
     y = np.empty_like(h)
-    for k in numba.prange(nchunks):
-        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
-            for c in range(C):
-                v = h[i, c] * scale[c] + offset[c]
-                y[i, c] = v if v > 0 else np.float32(0.0)
+    if parallel:
+        _bn_relu_parallel(h, scale, offset, y, nchunks)
+    else:
+        _bn_relu_rows(h, scale, offset, y, 0, R)
     return y, mean, var
 
 
+@numba.njit(**_JIT)
+def _bn_grad_sums_rows(gy, h, scale, offset, mean32, inv32, sb, sg, lo, hi):
+    C = h.shape[1]
+    for i in range(lo, hi):
+        for c in range(C):
+            # Branch-free (adds 0 where the ReLU is off: the same sums), so the loop vectorises.
+            x = h[i, c]
+            g = np.float64(gy[i, c]) if x * scale[c] + offset[c] > 0 else 0.0
+            sb[c] += g
+            sg[c] += g * np.float64((x - mean32[c]) * inv32[c])
+
+
+@numba.njit(**_JIT)
+def _bn_grad_rows(gy, h, wn, scale, offset, mean32, inv32, a, db32, dg32, dh, lo, hi):
+    C = h.shape[1]
+    for i in range(lo, hi):
+        w = wn[i]
+        for c in range(C):
+            x = h[i, c]
+            g = gy[i, c] if x * scale[c] + offset[c] > 0 else np.float32(0.0)
+            xhat = (x - mean32[c]) * inv32[c]
+            dh[i, c] = a[c] * (g - w * (db32[c] + xhat * dg32[c]))
+
+
 @numba.njit(**_JIT_PAR)
-def weighted_bn_relu_backward(gy, y, h, wn, mean, invstd, gamma, nchunks):
+def _bn_grad_sums_parallel(gy, h, scale, offset, mean32, inv32, sb, sg):
+    R, n = h.shape[0], sb.shape[0]
+    for k in numba.prange(n):
+        _bn_grad_sums_rows(gy, h, scale, offset, mean32, inv32, sb[k], sg[k], k * R // n, (k + 1) * R // n)
+
+
+@numba.njit(**_JIT_PAR)
+def _bn_grad_parallel(gy, h, wn, scale, offset, mean32, inv32, a, db32, dg32, dh, nchunks):
+    R = h.shape[0]
+    for k in numba.prange(nchunks):
+        _bn_grad_rows(gy, h, wn, scale, offset, mean32, inv32, a, db32, dg32, dh, k * R // nchunks,
+                      (k + 1) * R // nchunks)
+
+
+@numba.njit(**_JIT)
+def weighted_bn_relu_backward(gy, h, wn, mean, var, invstd, gamma, beta, eps, nchunks, parallel=True):
     """Gradient of :func:`weighted_bn_relu_forward`: (dh (R, C) float32, dgamma (C,), dbeta (C,)).
 
     ``dh_i = gamma invstd (G_i - wn_i (sum G + xhat_i sum G xhat))`` with ``G = gy [y > 0]`` and
     ``xhat = (h - mean) invstd``: the batch-norm gradient of the population the rows stand for.
+    The ReLU's mask ``y > 0`` is recomputed from h with the forward's own float32 scale and offset
+    (the same operations, so the same mask bit for bit) instead of read from y: the two passes are
+    bound by memory bandwidth, and this reads two arrays of (R, C) in each instead of three.
+    ``nchunks`` and ``parallel`` as in the forward.
     """
     R, C = h.shape
+    scale, offset = _bn_affine(mean, var, gamma, beta, eps)
     sb = np.zeros((nchunks, C))
     sg = np.zeros((nchunks, C))
     mean32 = mean.astype(np.float32)
     inv32 = invstd.astype(np.float32)
-    for k in numba.prange(nchunks):
-        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
-            for c in range(C):
-                # Branch-free (adds 0 where the ReLU is off: the same sums), so the loop vectorises.
-                g = np.float64(gy[i, c]) if y[i, c] > 0 else 0.0
-                sb[k, c] += g
-                sg[k, c] += g * np.float64((h[i, c] - mean32[c]) * inv32[c])
+    if parallel:
+        _bn_grad_sums_parallel(gy, h, scale, offset, mean32, inv32, sb, sg)
+    else:
+        for k in range(nchunks):
+            _bn_grad_sums_rows(gy, h, scale, offset, mean32, inv32, sb[k], sg[k], k * R // nchunks,
+                               (k + 1) * R // nchunks)
     dbeta = sb.sum(axis=0)
     dgamma = sg.sum(axis=0)
     a = (gamma.astype(np.float64) * invstd).astype(np.float32)
     db32 = dbeta.astype(np.float32)
     dg32 = dgamma.astype(np.float32)
     dh = np.empty_like(h)
-    for k in numba.prange(nchunks):
-        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
-            w = wn[i]
-            for c in range(C):
-                g = gy[i, c] if y[i, c] > 0 else np.float32(0.0)
-                xhat = (h[i, c] - mean32[c]) * inv32[c]
-                dh[i, c] = a[c] * (g - w * (db32[c] + xhat * dg32[c]))
+    if parallel:
+        _bn_grad_parallel(gy, h, wn, scale, offset, mean32, inv32, a, db32, dg32, dh, nchunks)
+    else:
+        _bn_grad_rows(gy, h, wn, scale, offset, mean32, inv32, a, db32, dg32, dh, 0, R)
     return dh, dgamma, dbeta
 
 
+@numba.njit(**_JIT)
+def _segment_max_rows(h, offsets, out, lo, hi):
+    C = h.shape[1]
+    for s in range(lo, hi):
+        a = offsets[s]
+        for c in range(C):
+            out[s, c] = h[a, c]
+        for i in range(a + 1, offsets[s + 1]):
+            for c in range(C):
+                v = h[i, c]
+                m = out[s, c]
+                out[s, c] = v if (np.isnan(v) or m < v) else m
+
+
 @numba.njit(**_JIT_PAR)
-def segment_max_forward(h, offsets, nchunks):
+def _segment_max_parallel(h, offsets, out, nchunks):
+    S = offsets.shape[0] - 1
+    for k in numba.prange(nchunks):
+        _segment_max_rows(h, offsets, out, k * S // nchunks, (k + 1) * S // nchunks)
+
+
+@numba.njit(**_JIT)
+def segment_max_forward(h, offsets, nchunks, parallel=True):
     """Max over contiguous row segments: rows offsets[s]:offsets[s + 1] of h (R, C) -> (S, C), S =
-    len(offsets) - 1, every segment non-empty. A NaN row value makes its channel's max NaN (PyTorch's rule)."""
+    len(offsets) - 1, every segment non-empty. A NaN row value makes its channel's max NaN (PyTorch's rule).
+    ``parallel``: segment chunks on Numba's threads, else on the calling thread."""
     S = offsets.shape[0] - 1
     C = h.shape[1]
     out = np.empty((S, C), dtype=h.dtype)
-    for k in numba.prange(nchunks):
-        for s in range(k * S // nchunks, (k + 1) * S // nchunks):
-            a = offsets[s]
-            for c in range(C):
-                out[s, c] = h[a, c]
-            for i in range(a + 1, offsets[s + 1]):
-                for c in range(C):
-                    v = h[i, c]
-                    m = out[s, c]
-                    out[s, c] = v if (np.isnan(v) or m < v) else m
+    if parallel:
+        _segment_max_parallel(h, offsets, out, nchunks)
+    else:
+        _segment_max_rows(h, offsets, out, 0, S)
     return out
 
 
+@numba.njit(**_JIT)
+def _segment_max_grad_rows(g, out, h, offsets, gi, lo, hi):
+    C = h.shape[1]
+    zero = np.float32(0.0)
+    cnt = np.zeros(C, dtype=np.int64)
+    for s in range(lo, hi):
+        a, b = offsets[s], offsets[s + 1]
+        cnt[:] = 0
+        for i in range(a, b):
+            for c in range(C):  # branch-free, so that the loop vectorises; every element written
+                v = h[i, c]
+                hit = np.isnan(v) or v == out[s, c]
+                gi[i, c] = g[s, c] if hit else zero
+                cnt[c] += hit
+        if cnt.max() >= 2:  # ties in some channel
+            for i in range(a, b):
+                for c in range(C):
+                    if cnt[c] >= 2 and gi[i, c] > 0:
+                        gi[i, c] = gi[i, c] / np.float32(cnt[c])
+
+
 @numba.njit(**_JIT_PAR)
-def segment_max_backward(g, out, h, offsets, nchunks):
+def _segment_max_grad_parallel(g, out, h, offsets, gi, nchunks):
+    S = offsets.shape[0] - 1
+    for k in numba.prange(nchunks):
+        _segment_max_grad_rows(g, out, h, offsets, gi, k * S // nchunks, (k + 1) * S // nchunks)
+
+
+@numba.njit(**_JIT)
+def segment_max_backward(g, out, h, offsets, nchunks, parallel=True):
     """Gradient of :func:`segment_max_forward` for the output gradient g (S, C): PyTorch's CPU rule,
     each row whose value equals its segment's max (or is NaN) gets g; where n >= 2 rows of a channel
     do, those with a positive gradient get g / n. Returns (R, C), zero elsewhere."""
     S = offsets.shape[0] - 1
-    C = h.shape[1]
     gi = np.empty_like(h)
-    zero = np.float32(0.0)
-    for k in numba.prange(nchunks):
-        cnt = np.zeros(C, dtype=np.int64)
-        for s in range(k * S // nchunks, (k + 1) * S // nchunks):
-            a, b = offsets[s], offsets[s + 1]
-            cnt[:] = 0
-            for i in range(a, b):
-                for c in range(C):  # branch-free, so that the loop vectorises; every element written
-                    v = h[i, c]
-                    hit = np.isnan(v) or v == out[s, c]
-                    gi[i, c] = g[s, c] if hit else zero
-                    cnt[c] += hit
-            if cnt.max() >= 2:  # ties in some channel
-                for i in range(a, b):
-                    for c in range(C):
-                        if cnt[c] >= 2 and gi[i, c] > 0:
-                            gi[i, c] = gi[i, c] / np.float32(cnt[c])
+    if parallel:
+        _segment_max_grad_parallel(g, out, h, offsets, gi, nchunks)
+    else:
+        _segment_max_grad_rows(g, out, h, offsets, gi, 0, S)
     return gi
+
+
+#: Below this many elements (rows x channels) the batch-norm and segment-max kernels run their chunks on
+#: the calling thread. A parallel loop on Numba's workqueue layer costs ~0.1-0.2 ms to start (alone,
+#: on the project's 2-core VM: 10k x 32 values forward + backward 0.94 ms on two threads, 0.35 ms on
+#: one), and inside a training step its threads also compete with PyTorch's OpenMP threads, which
+#: spin for a while after each operator. In DEFAULTS training steps, alternated step by step in one
+#: process (30 each, 2 torch threads): every kernel parallel 0.446 s/step (median), serial below 2 M
+#: values 0.415, below 8 M 0.388, all serial 0.396; STUDY steps (4 each): parallel 5.05, below 8 M
+#: 4.96, below 32 M 4.93 (its largest arrays, 36 M values and more, stay parallel).
+PARALLEL_MIN_ELEMENTS = 1 << 23
+
+
+def run_parallel(elements: int) -> bool:
+    """Whether a kernel over ``elements`` values should run its chunks on Numba's threads (see
+    `PARALLEL_MIN_ELEMENTS`); the chunks, and so the numbers, are the same either way."""
+    return numba.get_num_threads() > 1 and int(elements) >= PARALLEL_MIN_ELEMENTS
 
 
 def parallel_chunks(threads: int) -> int:
