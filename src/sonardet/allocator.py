@@ -4,9 +4,9 @@ glibc's ``malloc`` serves every block above its mmap threshold (at most 32 MB, h
 a fresh ``mmap`` and gives it back with ``munmap`` on ``free``; it also trims the top of the heap
 back to the system. A training step of the study's SASA network allocates and frees several GB in
 blocks of 50-500 MB, so every step paid for page faults and for the kernel zeroing those pages
-again: ``benchmarks/sasa.py --configs STUDY`` on the project's 2-core VM spent 23 s of its 45 s in
-the kernel (8.3 s/step), and 6.6 s of 34 s (5.7 s/step) with the freed memory kept. PyTorch's CPU
-allocator has no cache of its own, and neither have numpy's nor numba's.
+again: ``benchmarks/sasa.py --configs STUDY --steps 3 --warmup 1`` on the project's 2-core VM spent
+25.8 s of its 49 s in the kernel (9.4 s/step) without this, 9.6-10.2 s of 38-41 s (5.9-6.7 s/step)
+with it. PyTorch's CPU allocator has no cache of its own, and neither have numpy's nor Numba's.
 
 :func:`retain_freed_memory` sets, once per process, ``M_MMAP_MAX`` 0 (large blocks come from the
 heap, whose freed blocks are reused) and ``M_TRIM_THRESHOLD`` to its largest value (the heap is never
