@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import warnings
 
 import numpy as np
@@ -180,6 +181,8 @@ def test_overfits_two_small_scenes(tmp_path):
     assert len(lines) == 201 and lines[0].startswith("epoch,")
     info = json.loads((run / "train.json").read_text())
     assert info["steps"] == 200 and info["train_time_s"] > 0 and info["peak_rss_mb"] > 0
+    # the allocator setting of the training (sonardet.allocator), in force on glibc
+    assert info["freed_memory_kept"] is (sys.platform.startswith("linux") and info["params"]["retain_freed_memory"])
 
 
 def test_padding_warns(tmp_path):

@@ -458,6 +458,8 @@ def _training_summary(params: dict, device, scenes: list, val_scenes: list, trai
         "method": "sasa",
         "device": str(device),
         "torch_threads": torch.get_num_threads(),
+        # whether glibc kept freed memory in the process (sonardet.allocator): False where it is off or not glibc
+        "freed_memory_kept": bool(params.get("retain_freed_memory", True)) and retain_freed_memory(),
         "n_train_scenes": len(scenes),
         "n_val_scenes": len(val_scenes),
         "train_scenes": train_ids,
