@@ -19,8 +19,11 @@ with ``--synthetic`` (or when none exist) synthetic scenes of the same size are 
 ``--padded`` runs the grouped MLPs on the padded ball-query slots (``compact_groups: false``, the
 earlier computation, bit for bit) instead of the distinct neighbours, to compare the two.
 
-The step time is the median of the timed steps; on a shared machine compare rows taken at the same
-time (the machine's load average is printed). A STUDY step on CPU takes seconds to tens of seconds:
+The step time is the median of the timed steps, and the fastest of them beside it (a shared VM only
+slows a step down); on a shared machine compare rows taken at the same time (the machine's load
+average is printed). ``--system-malloc`` leaves glibc's allocator as it is (freed memory goes back
+to the system, ``retain_freed_memory: false``) and ``--parallel-min-elements N`` moves the size from
+which the fused kernels run in parallel, to compare both with the defaults. A STUDY step on CPU takes seconds to tens of seconds:
 ``--steps 2`` keeps the run to a few minutes.
 
 Usage: ``python benchmarks/sasa.py [--threads 2] [--steps 5] [--configs DEFAULTS,STUDY] [--device cpu]
@@ -238,12 +241,13 @@ def main(argv=None) -> list[dict]:
           f"{'padded slots' if args.padded else 'distinct neighbours'}, freed memory "
           f"{'returned to the system' if args.system_malloc else 'kept'}, fused kernels parallel from "
           f"{rows[0]['kernels_parallel_min_elements']} values, load average {os.getloadavg()[0]:.1f}")
-    head = ("config", "device", "batch", "points", "params", "s/step", "s/scene(train)", "s/scene(infer)",
+    head = ("config", "device", "batch", "points", "params", "s/step", "fastest", "s/scene(train)", "s/scene(infer)",
             "prep s/scene", f"epoch s ({args.train_scenes} sc.)", "schedule h", "peak RSS MB", "load")
     print(" | ".join(head))
     for r in rows:
         print(" | ".join([r["config"], r["device"], str(r["batch_size"]), str(r["n_points"]), f"{r['n_params']:,}",
-                          f"{r['train_s_per_step']:.2f}", f"{r['train_s_per_scene']:.2f}", f"{r['infer_s_per_scene']:.2f}",
+                          f"{r['train_s_per_step']:.2f}", f"{r['train_s_per_step_min']:.2f}",
+                          f"{r['train_s_per_scene']:.2f}", f"{r['infer_s_per_scene']:.2f}",
                           f"{r['prepare_s_per_scene']:.2f}", f"{r['epoch_s_est']:.0f}",
                           f"{r['schedule_s_est'] / 3600:.2f} ({r['epochs']} ep.)", f"{r['peak_rss_mb']:.0f}",
                           f"{r['load_avg_1min']:.1f}"]))

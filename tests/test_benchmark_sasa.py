@@ -1,0 +1,27 @@
+"""The SASA speed benchmark (benchmarks/sasa.py): a short CPU run with its switches, read back from
+its JSON (the timings themselves are never asserted; README quotes full runs)."""
+
+import json
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+import sasa as sasa_benchmark  # noqa: E402
+
+
+def test_a_short_run_reports_its_settings(tmp_path, capsys):
+    out = tmp_path / "sasa.json"
+    sasa_benchmark.main(["--configs", "DEFAULTS", "--device", "cpu", "--synthetic", "--n-scenes", "4",
+                         "--steps", "2", "--warmup", "0", "--threads", "1", "--system-malloc",
+                         "--parallel-min-elements", "0", "--json", str(out)])
+    (row,) = json.loads(out.read_text())["rows"]
+    assert row["config"] == "DEFAULTS" and row["device"] == "cpu" and row["threads"] == 1
+    assert row["freed_memory_kept"] is False  # --system-malloc
+    assert row["kernels_parallel_min_elements"] == 0
+    assert 0 < row["train_s_per_step_min"] <= row["train_s_per_step"]
+    assert row["infer_s_per_scene"] > 0 and row["peak_rss_mb"] > 0
+    printed = capsys.readouterr().out
+    assert "freed memory returned to the system" in printed and "fused kernels parallel from 0 values" in printed
+    assert "| fastest |" in printed
