@@ -23,8 +23,8 @@ The step time is the median of the timed steps, and the fastest of them beside i
 slows a step down); on a shared machine compare rows taken at the same time (the machine's load
 average is printed). ``--system-malloc`` leaves glibc's allocator as it is (freed memory goes back
 to the system, ``retain_freed_memory: false``) and ``--parallel-min-elements N`` moves the size from
-which the fused kernels run in parallel, to compare both with the defaults. A STUDY step on CPU takes seconds to tens of seconds:
-``--steps 2`` keeps the run to a few minutes.
+which the fused kernels run in parallel, to compare both with the defaults. A STUDY step on CPU
+takes seconds to tens of seconds: ``--steps 2`` keeps the run to a few minutes.
 
 Usage: ``python benchmarks/sasa.py [--threads 2] [--steps 5] [--configs DEFAULTS,STUDY] [--device cpu]
 [--padded] [--synthetic] [--json out.json]``. Timings are machine-dependent: compare rows taken on the

@@ -327,8 +327,8 @@ PRESETS = {"default": DEFAULTS, "study": STUDY}
 
 #: Keys that do not change what is learned (not compared when resuming or loading a model).
 RUNTIME_KEYS = frozenset({"num_threads", "sampling_threads", "compact_groups", "progress", "retain_freed_memory",
-                          "val_every_epochs",
-                          "early_stop_patience", "early_stop_min_delta", "early_stop_min_epoch_frac"})
+                          "val_every_epochs", "early_stop_patience", "early_stop_min_delta",
+                          "early_stop_min_epoch_frac"})
 #: Keys used only after the network (may differ between training and inference).
 INFERENCE_KEYS = frozenset({"score_thresh", "nms_mode", "nms_iou", "nms_pre_max", "nms_post_max"})
 #: Keys that define the network and its input: a model is only used with the values it was trained with.
