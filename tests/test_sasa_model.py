@@ -20,7 +20,7 @@ from sonardet.detect.sasa import (ConfigMismatchError, SASADetector, TrainedSASA
                                   train)
 from sonardet.detect.sasa.box_coder import PointBinResidualCoder
 from sonardet.detect.sasa.data import PaddingWarning, augment, collate, prepare_scene, sample_points
-from sonardet.detect.sasa.losses import box_corners
+from sonardet.detect.sasa.losses import assign_points, box_corners, points_in_boxes
 from sonardet.detect.sasa.trainer import _make_batch, evaluate_scenes
 from sonardet.geometry import box_corners as np_box_corners
 from sonardet.geometry import points_in_box
@@ -300,6 +300,48 @@ def test_corner_order_matches_geometry():
     box = [1.0, -2.0, 0.5, 2.3, 1.5, 1.0, 0.4]
     a = box_corners(torch.tensor(box, dtype=torch.float64)).numpy()
     assert np.allclose(a, np_box_corners(box))
+
+
+def _points_in_boxes_stacked(points, boxes, valid, extra_m=0.0):
+    """The loss's former formulation: every point in every box's frame as one (B, M, K, 3) tensor."""
+    d = points[:, :, None, :] - boxes[:, None, :, :3]
+    c, s = torch.cos(boxes[:, None, :, 6]), torch.sin(boxes[:, None, :, 6])
+    loc = torch.stack([d[..., 0] * c + d[..., 1] * s, -d[..., 0] * s + d[..., 1] * c, d[..., 2]], dim=-1)
+    half = 0.5 * (boxes[:, None, :, 3:6] + extra_m)
+    return (loc.abs() <= half + 1e-5).all(dim=-1) & valid[:, None, :]
+
+
+def test_points_in_boxes_agrees_with_the_stacked_form_and_geometry():
+    gen = torch.Generator().manual_seed(3)
+    boxes = torch.cat([torch.rand(2, 6, 3, generator=gen) * 8 - 4, 0.5 + torch.rand(2, 6, 3, generator=gen) * 2,
+                       torch.rand(2, 6, 1, generator=gen) * 2 * math.pi], dim=-1)
+    valid = torch.ones(2, 6, dtype=torch.bool)
+    valid[1, 4:] = False  # padded boxes contain nothing
+    pts = torch.rand(2, 3000, 3, generator=gen) * 10 - 5
+    # points on and just off the faces of box (0, 0), where rounding decides
+    x, y, z, l, w, h, yaw = boxes[0, 0].tolist()
+    u = torch.tensor([0.5 * l, -0.5 * l, 0.5 * l + 1e-5, 0.0, 0.0, 0.0])
+    v = torch.tensor([0.0, 0.0, 0.0, 0.5 * w, -0.5 * w - 2e-5, 0.0])
+    hz = torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.5 * h])
+    face = torch.stack([x + u * math.cos(yaw) - v * math.sin(yaw), y + u * math.sin(yaw) + v * math.cos(yaw),
+                        z + hz], dim=-1)
+    pts[0, :len(face)] = face
+    for extra in (0.0, 0.4):
+        got = points_in_boxes(pts, boxes, valid, extra)
+        assert torch.equal(got, _points_in_boxes_stacked(pts, boxes, valid, extra))
+        for b in range(2):
+            for k in range(6):
+                mask = got[b, :, k].numpy()
+                if not valid[b, k]:
+                    assert not mask.any()
+                    continue
+                ref = points_in_box(pts[b].double().numpy(), boxes[b, k].double().numpy(), 0.5 * extra)
+                assert ref.any() and (~ref).any()
+                assert (mask != ref).sum() <= 3  # float32 and float64 differ only on the faces
+    idx, inside = assign_points(pts, boxes, valid, 0.4)
+    assert torch.equal(inside, _points_in_boxes_stacked(pts, boxes, valid, 0.4))
+    d2 = ((pts[:, :, None, :] - boxes[:, None, :, :3]) ** 2).sum(-1).masked_fill(~inside, float("inf"))
+    assert torch.equal(idx, torch.where(inside.any(-1), d2.argmin(-1), -1))
 
 
 def test_augmentation_keeps_points_in_their_boxes(tmp_path):

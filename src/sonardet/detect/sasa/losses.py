@@ -34,28 +34,38 @@ from .box_coder import PointBinResidualCoder
 __all__ = ["points_in_boxes", "assign_points", "centerness", "box_corners", "SASALoss"]
 
 
-def _local(points: torch.Tensor, boxes: torch.Tensor) -> torch.Tensor:
-    """Points (B, M, 3) in the frame of every box (B, K, 7): (B, M, K, 3)."""
-    d = points[:, :, None, :] - boxes[:, None, :, :3]
+def _box_coords(points: torch.Tensor, boxes: torch.Tensor):
+    """Points (B, M, 3) in the frame of every box (B, K, 7): the distances (|u|, |v|, |w|), each
+    (B, M, K), from the box's centre along its length, width and height axes (m)."""
+    dx = points[:, :, None, 0] - boxes[:, None, :, 0]
+    dy = points[:, :, None, 1] - boxes[:, None, :, 1]
+    w = points[:, :, None, 2] - boxes[:, None, :, 2]
     c = torch.cos(boxes[:, None, :, 6])
     s = torch.sin(boxes[:, None, :, 6])
-    u = d[..., 0] * c + d[..., 1] * s
-    v = -d[..., 0] * s + d[..., 1] * c
-    return torch.stack([u, v, d[..., 2]], dim=-1)
+    return (dx * c + dy * s).abs(), (-dx * s + dy * c).abs(), w.abs()
+
+
+def _inside(coords, boxes: torch.Tensor, valid: torch.Tensor, extra_m: float = 0.0) -> torch.Tensor:
+    """(B, M, K) bool: the points whose box-frame distances are `coords` (``_box_coords``) lie inside
+    box k grown by ``extra_m`` in total per extent; padded boxes (``valid`` False) contain nothing.
+    Three comparisons joined by ``&``: the same booleans as ``.all(-1)`` over a stacked (B, M, K, 3)
+    tensor, without stacking it (a reduction over a last axis of 3 is slow in PyTorch on CPU)."""
+    u, v, w = coords
+    lim = 0.5 * (boxes[:, None, :, 3:6] + extra_m) + 1e-5
+    return (u <= lim[..., 0]) & (v <= lim[..., 1]) & (w <= lim[..., 2]) & valid[:, None, :]
 
 
 def points_in_boxes(points: torch.Tensor, boxes: torch.Tensor, valid: torch.Tensor, extra_m: float = 0.0):
     """(B, M, K) bool: point m inside box k grown by ``extra_m`` in total per extent (``extra_m / 2`` per
     side, as reference ``enlarge_box3d``); padded boxes (``valid`` False) contain nothing."""
-    loc = _local(points, boxes)
-    half = 0.5 * (boxes[:, None, :, 3:6] + extra_m)
-    inside = (loc.abs() <= half + 1e-5).all(dim=-1)
-    return inside & valid[:, None, :]
+    return _inside(_box_coords(points, boxes), boxes, valid, extra_m)
 
 
-def assign_points(points: torch.Tensor, boxes: torch.Tensor, valid: torch.Tensor, extra_m: float = 0.0):
-    """Box index (B, M) of the nearest-centre box containing each point, -1 for none; also the (B, M, K) mask."""
-    inside = points_in_boxes(points, boxes, valid, extra_m)
+def assign_points(points: torch.Tensor, boxes: torch.Tensor, valid: torch.Tensor, extra_m: float = 0.0,
+                  coords=None):
+    """Box index (B, M) of the nearest-centre box containing each point, -1 for none; also the (B, M, K) mask.
+    coords: the points' ``_box_coords`` when the caller has them already."""
+    inside = _inside(_box_coords(points, boxes) if coords is None else coords, boxes, valid, extra_m)
     d2 = ((points[:, :, None, :] - boxes[:, None, :, :3]) ** 2).sum(-1)
     d2 = torch.where(inside, d2, torch.full_like(d2, float("inf")))
     best = d2.argmin(dim=-1)
@@ -137,8 +147,9 @@ class SASALoss:
             w = float(self.p["seg_layer_weights"][li])
             if w == 0:
                 continue
-            inside = points_in_boxes(xyz, boxes, valid).any(-1)
-            grown = points_in_boxes(xyz, boxes, valid, float(self.p["seg_extra_width_m"])).any(-1)
+            coords = _box_coords(xyz, boxes)  # one frame change for both masks
+            inside = _inside(coords, boxes, valid).any(-1)
+            grown = _inside(coords, boxes, valid, float(self.p["seg_extra_width_m"])).any(-1)
             weight = (~(grown & ~inside)).to(lg.dtype)
             bce = F.binary_cross_entropy_with_logits(lg, inside.to(lg.dtype), reduction="none")
             l = (bce * weight).sum() / weight.sum().clamp(min=1.0)
@@ -160,7 +171,8 @@ class SASALoss:
 
         # vote loss
         cand, votes = head["candidates"], head["votes"]
-        vidx, _ = assign_points(cand, boxes, valid, float(p["vote_extra_width_m"]))
+        cand_coords = _box_coords(cand, boxes)  # also for the recall of the candidates below
+        vidx, _ = assign_points(cand, boxes, valid, float(p["vote_extra_width_m"]), coords=cand_coords)
         vpos = vidx >= 0
         n_vpos = vpos.sum()
         tgt = torch.gather(boxes[..., :3], 1, vidx.clamp(min=0)[..., None].expand(-1, -1, 3))
@@ -219,7 +231,7 @@ class SASALoss:
         )
         with torch.no_grad():  # share of gt boxes that hold at least one candidate / positive vote
             n_gt = valid.sum().clamp(min=1)
-            cand_in = points_in_boxes(cand, boxes, valid).any(1)
+            cand_in = _inside(cand_coords, boxes, valid).any(1)
             parts["recall_candidates"] = float(cand_in.sum() / n_gt)
             hit = torch.zeros_like(valid)
             if pos.any():
