@@ -9,8 +9,9 @@ again: ``benchmarks/sasa.py --configs STUDY --steps 3 --warmup 1`` on the projec
 with it. PyTorch's CPU allocator has no cache of its own, and neither have numpy's nor Numba's.
 
 :func:`retain_freed_memory` sets, once per process, ``M_MMAP_MAX`` 0 (large blocks come from the
-heap, whose freed blocks are reused) and ``M_TRIM_THRESHOLD`` -1 (the heap is never given back). Cost: the process keeps its peak heap until it ends (measured +7 % peak resident memory
-for the STUDY step, nothing for DEFAULTS), which is why only the SASA training and inference call it,
+heap, whose freed blocks are reused) and ``M_TRIM_THRESHOLD`` -1 (the heap is never given back).
+Cost: the process keeps its peak heap until it ends (measured +7 % peak resident memory for the
+STUDY step, nothing for DEFAULTS), which is why only the SASA training and inference call it,
 not the package on import. Where glibc would need a new heap for a block and cannot grow one, it
 still falls back to ``mmap``, so nothing fails for want of it. No library did this for us: the
 alternatives (jemalloc or tcmalloc preloaded) are not installable from the package index.
@@ -34,6 +35,7 @@ __all__ = ["retain_freed_memory"]
 # glibc's <malloc.h>
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_MAX = -4
+
 
 @functools.cache
 def retain_freed_memory() -> bool:

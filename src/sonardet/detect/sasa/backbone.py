@@ -180,15 +180,19 @@ class _WeightedBatchNormReLU(torch.autograd.Function):
         return dh, None, dgamma, dbeta, None
 
 
+def _kernel_chunks(h: torch.Tensor) -> tuple[int, bool]:
+    """The row chunks (for torch's thread count) and whether to run them in parallel, for a fused
+    kernel over h: the last two arguments of every kernel of :mod:`.ops.kernels` called here."""
+    return kernels.parallel_chunks(torch.get_num_threads()), kernels.run_parallel(h.numel())
+
+
 class _FusedWeightedBatchNormReLU(torch.autograd.Function):
     """:class:`_WeightedBatchNormReLU` through the fused CPU kernels of :mod:`.ops.kernels` (float32)."""
 
     @staticmethod
     def forward(ctx, h, wn, gamma, beta, eps):
-        chunks = kernels.parallel_chunks(torch.get_num_threads())
         y, mean, var = kernels.weighted_bn_relu_forward(h.detach().numpy(), wn.numpy(), gamma.detach().numpy(),
-                                                        beta.detach().numpy(), float(eps), chunks,
-                                                        kernels.run_parallel(h.numel()))
+                                                        beta.detach().numpy(), float(eps), *_kernel_chunks(h))
         y, mean, var = torch.from_numpy(y), torch.from_numpy(mean), torch.from_numpy(var)
         ctx.save_for_backward(h, wn, gamma, beta, mean, var, torch.rsqrt(var + eps))
         ctx.eps = float(eps)
@@ -199,11 +203,10 @@ class _FusedWeightedBatchNormReLU(torch.autograd.Function):
     @staticmethod
     def backward(ctx, gy, _gmean, _gvar):
         h, wn, gamma, beta, mean, var, invstd = ctx.saved_tensors
-        chunks = kernels.parallel_chunks(torch.get_num_threads())
         dh, dgamma, dbeta = kernels.weighted_bn_relu_backward(gy.contiguous().numpy(), h.detach().numpy(), wn.numpy(),
                                                               mean.numpy(), var.numpy(), invstd.numpy(),
                                                               gamma.detach().numpy(), beta.detach().numpy(), ctx.eps,
-                                                              chunks, kernels.run_parallel(h.numel()))
+                                                              *_kernel_chunks(h))
         return torch.from_numpy(dh), None, torch.from_numpy(dgamma).to(h.dtype), torch.from_numpy(dbeta).to(h.dtype), None
 
 
@@ -220,18 +223,15 @@ class _FusedSegmentMax(torch.autograd.Function):
     def forward(ctx, h, lengths):
         offsets = torch.zeros(len(lengths) + 1, dtype=torch.int64)
         torch.cumsum(lengths, 0, out=offsets[1:])
-        chunks = kernels.parallel_chunks(torch.get_num_threads())
-        out = torch.from_numpy(kernels.segment_max_forward(h.detach().numpy(), offsets.numpy(), chunks,
-                                                           kernels.run_parallel(h.numel())))
+        out = torch.from_numpy(kernels.segment_max_forward(h.detach().numpy(), offsets.numpy(), *_kernel_chunks(h)))
         ctx.save_for_backward(h, out, offsets)
         return out
 
     @staticmethod
     def backward(ctx, g):
         h, out, offsets = ctx.saved_tensors
-        chunks = kernels.parallel_chunks(torch.get_num_threads())
         gi = kernels.segment_max_backward(g.contiguous().numpy(), out.numpy(), h.detach().numpy(), offsets.numpy(),
-                                          chunks, kernels.run_parallel(h.numel()))
+                                          *_kernel_chunks(h))
         return torch.from_numpy(gi), None
 
 
