@@ -23,12 +23,12 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-import open3d as o3d
 import trimesh
 from matplotlib.path import Path as MplPath
 from scipy import stats
 
 from sonardet.io.origin import LOCAL_LIMIT_M, choose_origin, finite_xyz
+from sonardet.ransac import segment_plane
 
 __all__ = [
     "ARRAY_KEYS",
@@ -214,14 +214,11 @@ def _is_degenerate(singular_values: np.ndarray) -> bool:
 
 def _ransac_plane(local: np.ndarray, ransac_distance_m: float, ransac_n: int, iterations: int, seed: int,
                   label: str):
-    """RANSAC plane of local-frame points (M, 3), m (Open3D ``segment_plane``, seeded): (plane model
+    """RANSAC plane of local-frame points (M, 3), m (Open3D ``segment_plane``, seeded, one thread): (plane model
     [a, b, c, d], boolean inlier mask (M,)). Raises when it finds fewer than 3 inliers."""
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(local))
-    o3d.utility.random.seed(int(seed))
-    model, inliers = pcd.segment_plane(distance_threshold=float(ransac_distance_m), ransac_n=int(ransac_n),
-                                       num_iterations=int(iterations))
+    model, inliers = segment_plane(local, ransac_distance_m, ransac_n, iterations, seed)
     inl = np.zeros(len(local), dtype=bool)
-    inl[np.asarray(inliers, dtype=np.int64)] = True
+    inl[inliers] = True
     if int(inl.sum()) < 3:
         raise ValueError(f"{label}: RANSAC found only {int(inl.sum())} inliers; increase ransac_distance_m")
     return model, inl

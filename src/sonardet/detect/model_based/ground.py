@@ -10,10 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 from scipy import ndimage as ndi
 
 from ...jit import numba
+from ...ransac import segment_plane
 
 
 @dataclass
@@ -55,17 +55,13 @@ def ransac_plane_ground(xyz: np.ndarray, distance_m: float, n_iter: int, seed: i
     """Seabed as one RANSAC plane (Open3D `segment_plane`, 3-point samples), as in the source study.
 
     distance_m: inlier distance of the RANSAC (m); n_iter: RANSAC iterations; seed: Open3D's RANSAC
-    seed (set with `o3d.utility.random.seed`, so the plane is deterministic). The plane normal is
+    seed (:func:`sonardet.ransac.segment_plane`: one thread, so the plane is deterministic). The plane normal is
     oriented up; `hab` is the signed distance of each point to the plane (m).
     """
     p = np.asarray(xyz, dtype=np.float64)
     if len(p) < 3:
         raise ValueError(f"a RANSAC plane needs at least 3 points, got {len(p)}")
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
-    o3d.utility.random.seed(int(seed))
-    plane, _ = pcd.segment_plane(distance_threshold=float(distance_m), ransac_n=3, num_iterations=int(n_iter),
-                                 probability=1.0)
-    plane = np.asarray(plane, dtype=np.float64)
+    plane, _ = segment_plane(p, distance_m, 3, n_iter, seed, probability=1.0)
     n = np.linalg.norm(plane[:3])
     if not np.isfinite(n) or n < 1e-12:
         raise ValueError("RANSAC found no seabed plane (degenerate input)")
