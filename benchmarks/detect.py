@@ -14,7 +14,12 @@ the same detections (the detector is deterministic); a difference is an error.
 
     python benchmarks/detect.py [--scenes 5] [--split dev] [--variants paper,ours] [--results results]
                                 [--params-ours '{"icp_xy_starts_m": 0}'] [--json out.json] [--no-skip-compare]
-                                [--repeat 3]
+                                [--repeat 3] [--rankings '[{}, {"score": "tight_fitness"}]']
+
+With ``--rankings``, `paper` settings that differ only in their ranking (e.g. the study's and the
+improvement ladder's tight fitness) are timed each alone and all in one shared run, which registers
+every window once (`ModelBasedDetector.rankings`, the workflow's shared job); their detections must
+be equal.
 
 Run it on 2 cores for the figures quoted in the README (e.g. `taskset -c 0,1 python benchmarks/detect.py`).
 """
@@ -79,6 +84,9 @@ def main():
     ap.add_argument("--repeat", type=int, default=1,
                     help="passes over the scenes (>= 1); with more than one, the mean of each scene's fastest and "
                          "median pass is reported too")
+    ap.add_argument("--rankings", default=None,
+                    help='JSON list of paper ranking overrides (e.g. \'[{}, {"score": "tight_fitness"}]\': the '
+                         'study and the ladder step): each alone, then all in one shared run, on every scene')
     ap.add_argument("--json", default=None, help="write all numbers to this JSON file")
     args = ap.parse_args()
     if args.repeat < 1:
@@ -171,8 +179,36 @@ def main():
         out["skip_compare"] = {"scene": sid, "seconds_with_skip": t_skip, "seconds_without_skip": t_all,
                                "windows": st_all["windows"], "windows_skipped": st_skip["windows_skipped"],
                                "icp_runs_with_skip": st_skip["icp_runs"], "icp_runs_without_skip": st_all["icp_runs"]}
+    if args.rankings:
+        out["rankings"] = compare_rankings(json.loads(args.rankings), params["paper"], templates, objects, points)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
+
+
+def compare_rankings(overrides: list, paper: dict, templates: dict, objects: dict, points: dict) -> dict:
+    """Seconds per scene of `paper` settings that differ only in their ranking (`overrides`), each
+    detector alone and all in one shared run (`ModelBasedDetector.rankings`), alternated per scene;
+    the shared run's detections must equal each one's alone (else an error)."""
+    alone = [ModelBasedDetector(templates, objects, {**paper, **o}, "paper") for o in overrides]
+    shared = ModelBasedDetector(templates, objects, paper, "paper")
+    t_alone, t_shared = [], []
+    for sid, xyz in points.items():
+        t0 = time.perf_counter()
+        ref = [d(xyz)[0] for d in alone]
+        t_alone.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        got = shared.rankings(xyz, overrides)
+        t_shared.append(time.perf_counter() - t0)
+        for o, r, (g, _) in zip(overrides, ref, got):
+            if _fingerprint(r) != _fingerprint(g):
+                raise SystemExit(f"[rankings] {sid}: the shared run's detections of {o} differ from its detector's alone")
+        print(f"[rankings] {sid}: {len(overrides)} rankings alone {t_alone[-1]:.2f} s, in one run "
+              f"{t_shared[-1]:.2f} s; the same detections", flush=True)
+    row = {"overrides": overrides, "seconds_per_scene_alone": float(np.mean(t_alone)),
+           "seconds_per_scene_shared": float(np.mean(t_shared)), "n_scenes": len(points)}
+    print(f"[rankings] {len(overrides)} rankings of paper: {row['seconds_per_scene_alone']:.2f} s per scene one "
+          f"detector each, {row['seconds_per_scene_shared']:.2f} s in one run; the same detections")
+    return row
 
 
 if __name__ == "__main__":

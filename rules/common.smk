@@ -336,6 +336,34 @@ def methods_on(dataset):
     return [m for m in METHOD if METHOD[m].runs_on(dataset)]
 
 
+#: Per-scene methods that run together on a dataset (sonardet.methods.shared_runs): dataset -> groups
+#: of two or more method names; every other per-scene method has a job of its own.
+SHARED_RUNS = {
+    d: [
+        [m.name for m in g]
+        for g in method_registry.shared_runs([METHOD[n] for n in methods_on(d)])
+        if len(g) > 1
+    ]
+    for d in DATASETS
+}
+
+
+def per_scene_alone_re(dataset):
+    """Wildcard regex of the per-scene methods that run alone on `dataset` (not in SHARED_RUNS)."""
+    shared = {n for g in SHARED_RUNS.get(dataset, []) for n in g}
+    return _alternation(
+        n for n, m in METHOD.items() if m.runner == "per_scene" and n not in shared
+    )
+
+
+def shared_detect_inputs(dataset, names):
+    """Inputs of the job of methods sharing a run on a dataset: its scenes and their resources."""
+    out = {"scenes": dataset_scene_files(dataset, "npz")}
+    for n in names:
+        out.update(method_resources(n))
+    return out
+
+
 def eval_files(methods=None):
     """metrics.json of every method (default: all configured) on every evaluation dataset it runs on,
     and the comparison (bootstrap intervals, scorings) of each evaluation dataset."""

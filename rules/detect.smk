@@ -5,7 +5,8 @@
 
 # One rule per evaluation dataset for the per-scene methods too: a job runs the method on every scene
 # of the dataset (the detector built once, the job's start-up paid once: benchmarks/job_startup.py)
-# and writes each scene's detections and statistics.
+# and writes each scene's detections and statistics. Methods that share a run on the dataset
+# (SHARED_RUNS) have the rule after this one.
 for _dataset in DATASETS:
 
     rule:
@@ -25,7 +26,7 @@ for _dataset in DATASETS:
         benchmark:
             f"results/benchmarks/detect_scenes/{{method}}/{_dataset}.tsv"
         wildcard_constraints:
-            method=PER_SCENE_RE,
+            method=per_scene_alone_re(_dataset),
         priority: PRIORITY["detect"]
         conda:
             "../environment.yml"
@@ -34,10 +35,50 @@ for _dataset in DATASETS:
             mem_mb=MEM_MB["detect"],
             runtime=RUNTIME_MIN["detect"],
         params:
-            method=lambda w: METHOD[w.method].to_dict(),
+            methods=lambda w: [METHOD[w.method].to_dict()],
             classes=CLASSES,
         script:
             "../workflow_scripts/detect_scenes.py"
+
+
+# Per-scene methods that share their work on a dataset (sonardet.methods.shared_runs, e.g. the paper
+# variant and the ladder's re-ranking of it): one job runs them together and writes every method's
+# files, each the same detections as a job of that method alone.
+for _dataset, _groups in SHARED_RUNS.items():
+    for _k, _names in enumerate(_groups):
+
+        rule:
+            name:
+                f"detect_scenes_{_dataset}_shared{_k}"
+            input:
+                **shared_detect_inputs(_dataset, _names),
+            output:
+                detections=[
+                    detection_file(m, _dataset, s)
+                    for m in _names
+                    for s in DATASETS[_dataset]
+                ],
+                stats=[
+                    scene_stats_file(m, _dataset, s)
+                    for m in _names
+                    for s in DATASETS[_dataset]
+                ],
+            log:
+                f"results/logs/detect_scenes/{'+'.join(_names)}/{_dataset}.log",
+            benchmark:
+                f"results/benchmarks/detect_scenes/{'+'.join(_names)}/{_dataset}.tsv"
+            priority: PRIORITY["detect"]
+            conda:
+                "../environment.yml"
+            threads: max(METHOD[m].threads for m in _names)
+            resources:
+                mem_mb=MEM_MB["detect"],
+                runtime=RUNTIME_MIN["detect"],
+            params:
+                methods=[METHOD[m].to_dict() for m in _names],
+                classes=CLASSES,
+            script:
+                "../workflow_scripts/detect_scenes.py"
 
 
 # One rule per evaluation dataset: its outputs are every scene of the dataset.

@@ -30,7 +30,7 @@ def test_every_rule_maps_to_the_script_it_runs():
 
 def test_imports_are_the_scripts_own_plus_the_detector():
     lines = script_imports("detect_scenes")
-    assert "from common import job, job_method, job_resources" in lines
+    assert "from common import job, job_resources" in lines
     assert lines[-1] == "from sonardet.detect.model_based import ModelBasedDetector"
     assert not any(line.startswith("from sonardet.detect") for line in script_imports("evaluate"))
 

@@ -361,6 +361,56 @@ def test_paper_unknown_score_is_a_clear_error(objects, templates, sensor):
         detect(xyz, templates, objects, {"score": "best"}, variant="paper")
 
 
+def test_paper_rankings_share_one_registration_and_equal_the_detectors_alone(objects, templates, sensor):
+    """Settings that differ only in the ranking keys (the study's RMSE ranking, the ladder's tight
+    fitness, a stricter acceptance and duplicate distance) run in one registration pass: each gets the
+    detections of its own detector, and the shared stages' counts; a difference outside the ranking
+    keys, or the 'ours' variant, is refused."""
+    cone, ring, tet = objects["reef_cone"], objects["reef_ring"], objects["tetrapod_b"]
+    placed = [(cone, *place(cone, 3.5, 5.0, 0.3)), (ring, *place(ring, 8.0, 5.5, 0.0)),
+              (tet, *place(tet, 6.0, 9.5, 1.1)), (cone, *place(cone, 5.52, 5.0, 0.9))]
+    xyz = survey(placed, sensor, extent_m=12.0)
+    overrides = [{}, {"score": "tight_fitness"}, {"score": "fitness_rmse", "fitness_min": 0.8, "duplicate_dist_m": 1.5,
+                                                  "rmse_max_m": {"*": 0.12}}]
+    shared = ModelBasedDetector(templates, objects, variant="paper").rankings(xyz, overrides)
+    assert len(shared) == 3
+    for o, (dets, stats) in zip(overrides, shared):
+        alone, alone_stats = ModelBasedDetector(templates, objects, o, variant="paper")(xyz)
+        assert dets == alone and len(dets) > 0
+        for key in ("windows", "windows_skipped", "icp_runs", "icp_declined", "hypotheses", "n_candidate_points"):
+            assert stats[key] == alone_stats[key], key
+        assert stats["seconds"]["registration"] > 0 and stats["seconds"]["total"] > 0
+    assert [d["score"] for d in shared[0][0]] != [d["score"] for d in shared[1][0]]  # the rankings differ
+    assert shared[2][1]["hypotheses"] < shared[0][1]["hypotheses"]  # the stricter one accepts fewer fits
+    with pytest.raises(ValueError, match="window_overlap"):
+        ModelBasedDetector(templates, objects, variant="paper").rankings(xyz, [{"window_overlap": 0.25}])
+    with pytest.raises(ValueError, match="paper"):
+        ModelBasedDetector(templates, objects, variant="ours").rankings(xyz, [{}])
+    with pytest.raises(ValueError, match="score"):
+        ModelBasedDetector(templates, objects, variant="paper").rankings(xyz, [{"score": "best"}])
+
+
+def test_rankings_benchmark_checks_the_shared_run(objects, templates, sensor, monkeypatch):
+    """benchmarks/detect.py --rankings: a shared run whose detections differ from a detector's alone is
+    an error (here made to differ by a detector that drops its last detection)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+    import detect as bench_detect
+
+    cone = objects["reef_cone"]
+    xyz = survey([(cone, *place(cone, 4.0, 4.0, 0.2))], sensor, extent_m=8.0)
+    overrides = [{}, {"score": "tight_fitness"}]
+    row = bench_detect.compare_rankings(overrides, {}, templates, objects, {"s": xyz})
+    assert row["n_scenes"] == 1 and row["overrides"] == overrides
+    rankings = ModelBasedDetector.rankings
+    monkeypatch.setattr(ModelBasedDetector, "rankings",
+                        lambda self, x, o: [(d[:-1], st) for d, st in rankings(self, x, o)])
+    with pytest.raises(SystemExit, match="differ"):
+        bench_detect.compare_rankings(overrides, {}, templates, objects, {"s": xyz})
+
+
 # ------------------------------------------------------------------ time bounds on dense input
 def _dense_noise(extent_m: float = 10.0, n: int = 15000, seed: int = 5) -> np.ndarray:
     """A flat seabed and a 3 m thick box of uniform noise above it (N points each): shapes everywhere."""

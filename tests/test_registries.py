@@ -36,6 +36,23 @@ def test_default_methods_come_from_the_registry(default_config):
     assert sasa.runner == "per_dataset" and sasa.trained and sasa.fraction == 50 and sasa.resources == ("model",)
 
 
+def test_methods_that_share_a_run_are_grouped(default_config):
+    """`paper` and the ladder's re-ranking of it share their registrations on the synthetic test set;
+    `ours`, the per-dataset SASA and a `paper` setting that changes the windows each run alone."""
+    on_test = [m for m in methods.configured(default_config) if m.runs_on("synthetic")]
+    groups = [[m.name for m in g] for g in methods.shared_runs(on_test)]
+    assert groups == [["model_based_paper", "model_based_paper_tight"], ["model_based_ours"]]
+    on_dev = [m for m in methods.configured(default_config) if m.runs_on("dev")]
+    assert [[m.name for m in g] for g in methods.shared_runs(on_dev)] == [["model_based_paper"], ["model_based_ours"]]
+    family = methods.family("model_based")
+    paper = methods.get("model_based_paper", default_config)
+    wider = paper.with_settings(params={"window_overlap": 0.25})
+    assert family.share_key(wider) != family.share_key(paper) is not None
+    assert family.share_key(methods.get("model_based_ours", default_config)) is None
+    with pytest.raises(ValueError, match="share"):
+        family.load_shared([paper, wider], methods.Resources())
+
+
 def test_a_method_not_configured_is_still_recognised(default_config):
     m = methods.get("sasa_30", default_config)  # e.g. a model trained elsewhere
     assert m.family == "sasa" and m.fraction == 30

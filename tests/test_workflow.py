@@ -80,6 +80,16 @@ def test_detections_of_every_method(smoke_run):
     # The ladder's extra step runs on the synthetic test set only.
     assert (smoke_run / f"results/detections/model_based_paper_tight/synthetic/{test[0]}.json").exists()
     assert not (smoke_run / "results/detections/model_based_paper_tight/dev").exists()
+    # ... in the job of `paper` there (they share the registrations: sonardet.methods.shared_runs).
+    pair = ["model_based_paper", "model_based_paper_tight"]
+    for method in pair:
+        st = json.loads((smoke_run / f"results/stats/{method}/synthetic/{test[0]}.json").read_text())
+        assert st["shared_run"] == pair and st["seconds"]["registration"] > 0
+    assert (smoke_run / "results/benchmarks/detect_scenes/model_based_paper+model_based_paper_tight/synthetic.tsv"
+            ).exists()
+    assert not (smoke_run / "results/benchmarks/detect_scenes/model_based_paper/synthetic.tsv").exists()
+    assert "shared_run" not in json.loads(
+        (smoke_run / f"results/stats/model_based_paper/dev/{dev[0]}.json").read_text())
 
 
 def test_sasa_training_outputs(smoke_run):

@@ -1,8 +1,10 @@
-"""Run one per-scene method on every scene of a dataset in one job: the detector is built once and
-the job's start-up paid once (benchmarks/job_startup.py). Writes each scene's detections and
-statistics (all or none); the detector's build time is shared equally by the scenes' statistics."""
+"""Run per-scene methods on every scene of a dataset in one job: the detector is built once and the
+job's start-up paid once (benchmarks/job_startup.py). Usually one method; several when they share a
+run (`sonardet.methods.shared_runs`: one detector does the work they have in common once, e.g. the
+registrations of two rankings of `paper`). Writes each method's detections and statistics of each
+scene (all or none); the detector's build time is shared equally by the scenes' statistics."""
 
-from common import job, job_method, job_resources
+from common import job, job_resources
 
 import json
 from pathlib import Path
@@ -14,24 +16,43 @@ from sonardet.io.scenes import read_scene_points
 
 with job(snakemake, "detect_scenes") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
-    method = job_method(smk)
+    run = [methods.Method.from_dict(d) for d in smk.params.methods]
+    names = [m.name for m in run]
     scenes, det_paths, stats_paths = list(smk.input.scenes), list(smk.output.detections), list(smk.output.stats)
-    if [Path(p).stem for p in scenes] != [Path(p).stem for p in det_paths]:
-        raise RuntimeError(f"{method.name}: the job's scenes and detection files differ in order or ids")
-    detector = methods.family(method.family).load(method, job_resources(smk, method))
-    build_s = float(getattr(detector, "build_seconds", 0.0)) / max(len(scenes), 1)
-    results = []
+    n = len(scenes)
+    if len(det_paths) != n * len(run) or len(stats_paths) != n * len(run):
+        raise RuntimeError(f"{'+'.join(names)}: {len(det_paths)} detection and {len(stats_paths)} statistics "
+                           f"outputs for {n} scenes of {len(run)} method(s)")
+    for k, name in enumerate(names):
+        mine = det_paths[k * n:(k + 1) * n]
+        if [Path(p).stem for p in scenes] != [Path(p).stem for p in mine] or any(
+                Path(p).parent.parent.name != name for p in mine):
+            raise RuntimeError(f"{name}: the job's scenes and detection files differ in order, ids or method")
+    family = methods.family(run[0].family)
+    resources = job_resources(smk, run[0])
+    if len(run) == 1:
+        single = family.load(run[0], resources)
+        detector = lambda xyz: [single(xyz)]  # noqa: E731
+        build = getattr(single, "build_seconds", 0.0)
+    else:
+        detector = family.load_shared(run, resources)
+        build = getattr(detector, "build_seconds", 0.0)
+        log.info("one run for %s (they share their work up to the ranking)", ", ".join(names))
+    build_s = float(build) / max(n, 1)
+    results = [[] for _ in run]
     for i, npz in enumerate(scenes, 1):
         scene = Path(npz).stem
-        dets, stats = detector(read_scene_points(npz)["xyz"])
-        stats["seconds"]["models"] = stats["seconds"].get("models", 0.0) + build_s
-        stats["seconds"]["total"] += build_s
-        results.append((scene, dets, stats))
-        n_acc = sum(bool(d.get("extras", {}).get("accepted", True)) for d in dets)
-        log.info("%s %s (%d/%d): %d detections (%d accepted), %.2f s", method.name, scene, i, len(scenes),
-                 len(dets), n_acc, stats["seconds"]["total"])
+        for k, (dets, stats) in enumerate(detector(read_scene_points(npz)["xyz"])):
+            stats["seconds"]["models"] = stats["seconds"].get("models", 0.0) + build_s
+            stats["seconds"]["total"] += build_s
+            if len(run) > 1:
+                stats["shared_run"] = names
+            results[k].append((scene, dets, stats))
+            n_acc = sum(bool(d.get("extras", {}).get("accepted", True)) for d in dets)
+            log.info("%s %s (%d/%d): %d detections (%d accepted), %.2f s", names[k], scene, i, n, len(dets), n_acc,
+                     stats["seconds"]["total"])
+    flat = [r for per_method in results for r in per_method]
     with atomic_outputs(det_paths + stats_paths) as staged:
-        for (scene, dets, stats), det_path, stats_path in zip(results, staged[: len(results)],
-                                                               staged[len(results):]):
-            write_detections(det_path, scene, method.name, dets, smk.params.classes)
-            atomic_write_text(stats_path, json.dumps({"scene": scene, **stats}, indent=1) + "\n")
+        for k, (scene, dets, stats) in enumerate(flat):
+            write_detections(staged[k], scene, names[k // n], dets, smk.params.classes)
+            atomic_write_text(staged[len(flat) + k], json.dumps({"scene": scene, **stats}, indent=1) + "\n")

@@ -13,7 +13,7 @@ from .model_based import ModelBased
 from .sasa import Sasa, SasaDomainRandomised, SasaSeeds
 
 __all__ = ["RESOURCE_KINDS", "RUNNERS", "Detector", "Method", "MethodFamily", "Resources", "check", "configured",
-           "families", "family", "get", "main_methods", "register", "variants"]
+           "families", "family", "get", "main_methods", "register", "shared_runs", "variants"]
 
 _FAMILIES: dict[str, MethodFamily] = {}
 
@@ -68,6 +68,19 @@ def get(name: str, config: dict) -> Method:
             return m
     known = ", ".join(m.name for m in configured(config))
     raise ValueError(f"unknown method {name!r}; configured methods: {known} (families: {', '.join(_FAMILIES)})")
+
+
+def shared_runs(methods: list[Method]) -> list[list[Method]]:
+    """The per-scene methods of `methods` in groups that run together on a dataset (one job, one
+    detector: `MethodFamily.share_key`, `MethodFamily.load_shared`), each group in the order given;
+    groups of one method included. The groups are ordered by their first member."""
+    groups: dict = {}
+    for m in methods:
+        if m.runner != "per_scene":
+            continue
+        key = _FAMILIES[m.family].share_key(m) if m.family in _FAMILIES else None
+        groups.setdefault((m.family, key) if key is not None else ("", m.name), []).append(m)
+    return list(groups.values())
 
 
 def check(config: dict) -> list[str]:

@@ -140,6 +140,19 @@ class MethodFamily:
         """A detector for `method`: a callable xyz (N,3) float64 -> (detections, stats)."""
         raise NotImplementedError(f"method family {self.name!r} cannot run")
 
+    def share_key(self, method: Method) -> str | None:
+        """Methods of this family with the same key (not None) do the same work on a scene up to a late
+        step (e.g. the same registrations, ranked differently): the workflow runs them on a dataset in
+        one job (:meth:`load_shared`). Default None: every method runs on its own."""
+        return None
+
+    def load_shared(self, methods: list[Method], resources: Resources) -> Callable[[np.ndarray], list]:
+        """One detector for methods of one :meth:`share_key`: xyz -> a list of (detections, stats), one
+        per method in order, each the detections of the method's own detector (:meth:`load`). Default:
+        each method's detector in turn."""
+        detectors = [self.load(m, resources) for m in methods]
+        return lambda xyz: [d(xyz) for d in detectors]
+
     def detect_dataset(self, method: Method, resources: Resources, scene_paths) -> tuple[dict, dict]:
         """Detections of every scene file (scene id -> list) and a timing dict {n_scenes,
         s_per_scene, s_max}. Default: load once, then the detector on each scene's soundings."""

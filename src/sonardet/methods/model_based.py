@@ -4,7 +4,10 @@ variant's defaults (sonardet.detect.model_based.params)."""
 
 from __future__ import annotations
 
+import json
 import re
+
+import numpy as np
 
 from ..detect.model_based import VARIANTS, resolve_params
 from .base import Method, MethodFamily, Resources
@@ -69,6 +72,30 @@ class ModelBased(MethodFamily):
     def check_params(self, method: Method) -> None:
         resolve_params(method.settings["params"], method.settings["variant"])
 
+    def share_key(self, method: Method) -> str | None:
+        """'paper' settings equal outside `paper.RANKING_KEYS` (e.g. the study's ranking and the ladder's
+        tight-fitness step) share the seabed, windows and registrations of a scene; 'ours' runs alone."""
+        if method.settings["variant"] != "paper":
+            return None
+        from ..detect.model_based.paper import RANKING_KEYS
+
+        p = resolve_params(method.settings["params"], "paper")
+        return "paper:" + json.dumps({k: v for k, v in p.items() if k not in RANKING_KEYS}, sort_keys=True)
+
+    def load_shared(self, methods: list[Method], resources: Resources):
+        """One 'paper' detector registering each scene once for all `methods` (same share key), ranking
+        the fits for each (`ModelBasedDetector.rankings`)."""
+        from ..detect.model_based import ModelBasedDetector
+        from ..detect.model_based.paper import RANKING_KEYS
+
+        keys = {self.share_key(m) for m in methods}
+        if len(keys) != 1 or None in keys:
+            raise ValueError(f"methods {[m.name for m in methods]} do not share a run (different share keys)")
+        params = [resolve_params(m.settings["params"], "paper") for m in methods]
+        detector = ModelBasedDetector(resources.templates, resources.objects, methods[0].settings["params"], "paper",
+                                      threads=resources.threads)
+        return _SharedRankings(detector, [{k: p[k] for k in RANKING_KEYS} for p in params])
+
     def load(self, method: Method, resources: Resources):
         """A ModelBasedDetector: the class models are built once (its `build_seconds`), then it runs on
         each point cloud, `ours` fitting on `resources.threads` worker threads."""
@@ -76,3 +103,14 @@ class ModelBased(MethodFamily):
 
         return ModelBasedDetector(resources.templates, resources.objects, method.settings["params"],
                                   method.settings["variant"], threads=resources.threads)
+
+
+class _SharedRankings:
+    """A 'paper' detector called for several rankings at once: xyz -> [(detections, stats)] per ranking."""
+
+    def __init__(self, detector, overrides: list[dict]):
+        self.detector, self.overrides = detector, overrides
+        self.build_seconds = detector.build_seconds
+
+    def __call__(self, xyz: np.ndarray) -> list:
+        return self.detector.rankings(xyz, self.overrides)

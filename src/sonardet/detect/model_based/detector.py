@@ -25,7 +25,7 @@ import open3d as o3d
 from ...io.origin import choose_origin, finite_xyz
 from .models import ClassModel, build_class_model
 from .ours import detect_ours, prepare_classes
-from .paper import detect_paper
+from .paper import RANKING_KEYS, detect_paper_rankings
 from .params import resolve_params
 from .tasks import worker_pool
 
@@ -124,15 +124,37 @@ class ModelBasedDetector:
 
         An empty cloud gives no detections and a warning; NaN/Inf points or a wrong shape raise ValueError.
         """
+        return self._run(xyz, [self.params])[0]
+
+    def rankings(self, xyz: np.ndarray, overrides: list[dict]) -> list[tuple[list[dict], dict]]:
+        """The 'paper' detections of several settings in one run: this detector's parameters with each
+        of `overrides` on top (keys of `paper.RANKING_KEYS` only: acceptance, score, duplicate removal),
+        sharing the seabed, the windows and their registration. Returns one (detections, stats) per
+        override, each the detections a detector of those settings gives alone; a stats dict holds the
+        shared stages' counts and seconds and its own scoring and selection, and its `total` is the
+        call's wall time less the other settings' own seconds (what it would have taken alone).
+        Raises ValueError for the 'ours' variant or an override outside RANKING_KEYS."""
+        if self.variant != "paper":
+            raise ValueError(f"only the 'paper' variant shares a run between rankings, not {self.variant!r}")
+        bad = sorted({k for o in overrides for k in o} - set(RANKING_KEYS))
+        if bad:
+            raise ValueError(f"rankings may override only {RANKING_KEYS}, not {bad}")
+        return self._run(xyz, [resolve_params({**self.params, **o}, "paper") for o in overrides])
+
+    def _run(self, xyz: np.ndarray, settings: list[dict]) -> list[tuple[list[dict], dict]]:
+        """(detections, stats) of each of `settings` (resolved parameters; several only for 'paper',
+        differing in RANKING_KEYS) on the cloud xyz."""
         t_all = time.perf_counter()
         p = self.params
-        stats = new_stats(self.variant)
+        stats = [new_stats(self.variant) for _ in settings]
         a = finite_xyz(xyz)
-        stats["n_points"] = int(len(a))
+        for s in stats:
+            s["n_points"] = int(len(a))
         if len(a) < 3:
-            warnings.warn(f"model-based detection on a cloud of {len(a)} point(s): nothing to detect", stacklevel=2)
-            stats["seconds"]["total"] = time.perf_counter() - t_all
-            return [], stats
+            warnings.warn(f"model-based detection on a cloud of {len(a)} point(s): nothing to detect", stacklevel=3)
+            for s in stats:
+                s["seconds"]["total"] = time.perf_counter() - t_all
+            return [([], s) for s in stats]
         origin = choose_origin(a)
         local = a - origin
         o3d.utility.random.seed(int(p["seed"]))
@@ -143,17 +165,23 @@ class ModelBasedDetector:
         try:
             if self.variant == "ours":
                 with worker_pool(self.threads) as pool:
-                    hyps = detect_ours(local, self.ours_classes, p, stats, pool)
+                    hyps = [detect_ours(local, self.ours_classes, p, stats[0], pool)]
             else:
-                hyps = detect_paper(local, self.models, p, stats)
+                hyps = detect_paper_rankings(local, self.models, settings, stats)
         finally:
             o3d.utility.set_max_threads(threads)
-        dets = [d for d in (_detection(h, origin, self.variant) for h in hyps) if d is not None]
-        dets.sort(key=lambda d: -d["score"])
-        stats["origin"] = [float(v) for v in origin]
-        stats["n_detections"] = len(dets)
-        stats["seconds"]["total"] = time.perf_counter() - t_all
-        return dets, stats
+        out = []
+        for h, s in zip(hyps, stats):
+            dets = [d for d in (_detection(x, origin, self.variant) for x in h) if d is not None]
+            dets.sort(key=lambda d: -d["score"])
+            s["origin"] = [float(v) for v in origin]
+            s["n_detections"] = len(dets)
+            out.append((dets, s))
+        wall = time.perf_counter() - t_all
+        own = [s["seconds"]["scoring"] + s["seconds"]["selection"] for s in stats]
+        for s, o in zip(stats, own):
+            s["seconds"]["total"] = wall - (sum(own) - o)
+        return out
 
 
 def detect(xyz: np.ndarray, templates: dict, objects: dict, params: dict | None = None,

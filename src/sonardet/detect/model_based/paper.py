@@ -21,6 +21,10 @@
    between the two below it, survives) or a kept detection of another class is closer than
    `duplicate_other_class_frac` x that class's radius (a smaller template fitted to part of a larger
    object: objects of different classes are not stacked).
+
+Steps 1 to 3 do not depend on the parameters of steps 4 and 5 (`RANKING_KEYS`): settings that differ
+only in those (the study's RMSE ranking and the ladder's tight-fitness ranking) can share one run's
+seabed, windows and fits (`detect_paper_rankings`), each getting the detections it would get alone.
 """
 
 from __future__ import annotations
@@ -48,6 +52,13 @@ from .registration import (
 from .scoring import Hypothesis
 
 SCORES = ("rmse", "fitness_rmse", "tight_fitness")
+#: Parameters that act only after registration (acceptance, score, duplicate removal; module doc,
+#: steps 4 and 5): settings equal in every other key register the same windows the same way.
+RANKING_KEYS = ("rmse_max_m", "fitness_min", "score", "score_corr_m", "duplicate_dist_m",
+                "duplicate_other_class_frac")
+#: Counts of a run that the rankings of one shared run have in common (steps 1 to 3).
+_SHARED_COUNTS = ("n_candidate_points", "windows", "windows_skipped", "icp_runs", "icp_declined", "capped")
+_SHARED_STAGES = ("ground", "proposals", "registration")
 
 log = logging.getLogger(__name__)
 
@@ -179,59 +190,98 @@ def _hypothesis(cls: str, m, res: IcpResult, tpl: np.ndarray, window: np.ndarray
     return h
 
 
-def _class_hypotheses(cls: str, m, pts: np.ndarray, tree: cKDTree, lo, hi, p: dict, stats: dict) -> list:
-    """Accepted fits of one class over its sliding windows (module doc, steps 2 to 4)."""
+def _class_hypotheses(cls: str, m, pts: np.ndarray, tree: cKDTree, lo, hi, p: dict, rankings: list,
+                      stats: list) -> list:
+    """Accepted fits of one class over its sliding windows (module doc, steps 2 to 4), one list per
+    ranking (settings of `rankings`, equal to `p` apart from RANKING_KEYS): the windows are registered
+    once (counted and timed in stats[0]), then accepted and scored for each ranking (timed in its own
+    stats)."""
     t = time.perf_counter()
-    wins, side = _class_windows(pts, lo, hi, m, p, stats)
+    wins, side = _class_windows(pts, lo, hi, m, p, stats[0])
     # The template loses what the seabed removal takes from a scan: its points this low above its base.
     templates = [thin(v[v[:, 2] > p["ground_min_height_m"]], p["template_voxel_m"])
                  for v in paper_template(m, p["template_view"])]
-    rmse_max = per_class(p["rmse_max_m"], cls)
-    stats["seconds"]["proposals"] += time.perf_counter() - t
-    out = []
+    rmse_max = [per_class(r["rmse_max_m"], cls) for r in rankings]
+    stats[0]["seconds"]["proposals"] += time.perf_counter() - t
+    out = [[] for _ in rankings]
     for w in wins:
         t = time.perf_counter()
         centre = 0.5 * (w[:2] + w[2:])
         idx = np.asarray(tree.query_ball_point(centre, 0.5 * side, p=np.inf), dtype=np.int64)
         idx.sort()
         window = pts[idx]
-        best = _best_fit(templates, window, p, stats)
-        stats["seconds"]["registration"] += time.perf_counter() - t
-        if best is None or not (0 < best[0].rmse_m <= rmse_max) or best[0].fitness < p["fitness_min"]:
+        best = _best_fit(templates, window, p, stats[0])
+        stats[0]["seconds"]["registration"] += time.perf_counter() - t
+        if best is None:
             continue
-        t = time.perf_counter()
-        out.append(_hypothesis(cls, m, best[0], best[1], window, rmse_max, p))
-        stats["seconds"]["scoring"] += time.perf_counter() - t
+        for k, r in enumerate(rankings):
+            if not (0 < best[0].rmse_m <= rmse_max[k]) or best[0].fitness < r["fitness_min"]:
+                continue
+            t = time.perf_counter()
+            out[k].append(_hypothesis(cls, m, best[0], best[1], window, rmse_max[k], r))
+            stats[k]["seconds"]["scoring"] += time.perf_counter() - t
     return out
+
+
+def check_rankings(p: dict, rankings: list) -> None:
+    """Raise ValueError unless every setting of `rankings` has a known score and equals `p` outside
+    RANKING_KEYS (only then do they share the registrations)."""
+    for r in rankings:
+        if r["score"] not in SCORES:
+            raise ValueError(f"paper parameter 'score' must be one of {SCORES}, got {r['score']!r}")
+        differ = sorted(k for k in set(p) | set(r) if k not in RANKING_KEYS and p.get(k) != r.get(k))
+        if differ:
+            raise ValueError(f"paper settings that share a run may differ only in {RANKING_KEYS}; these differ too: "
+                             f"{differ}")
 
 
 def detect_paper(xyz: np.ndarray, models: dict, p: dict, stats: dict) -> list:
     """Run the paper pipeline on local-frame points (N,3, m) with the class models (class -> ClassModel);
     returns the scored Hypothesis objects that survive the duplicate removal, best first, and adds
     its counts and per-stage seconds to `stats`."""
-    if p["score"] not in SCORES:
-        raise ValueError(f"paper parameter 'score' must be one of {SCORES}, got {p['score']!r}")
+    return detect_paper_rankings(xyz, models, [p], [stats])[0]
+
+
+def detect_paper_rankings(xyz: np.ndarray, models: dict, rankings: list, stats: list) -> list:
+    """`detect_paper` for several settings that differ only in RANKING_KEYS (`check_rankings`), sharing
+    one seabed, one set of windows and one registration of each: a list of kept hypotheses per
+    setting, each what `detect_paper` gives for it alone, and its counts and seconds added to the
+    stats dict of the same index (the shared stages' counts and seconds in each; scoring and
+    selection its own). Raises ValueError for settings that differ elsewhere or an unknown score."""
+    if not rankings or len(rankings) != len(stats):
+        raise ValueError(f"detect_paper_rankings needs one stats dict per setting ({len(rankings)} settings, "
+                         f"{len(stats)} stats)")
+    p = rankings[0]
+    check_rankings(p, rankings)
     t = time.perf_counter()
     hab = seabed(xyz, p).hab
     pts = xyz[hab > p["ground_min_height_m"]]
-    stats["n_candidate_points"] = int(len(pts))
-    stats["capped"] = {"windows": 0}
-    stats["seconds"]["ground"] += time.perf_counter() - t
+    stats[0]["n_candidate_points"] = int(len(pts))
+    stats[0]["capped"] = {"windows": 0}
+    stats[0]["seconds"]["ground"] += time.perf_counter() - t
     log.info("seabed: %d points, %d candidates above it, %.1f s", len(xyz), len(pts), time.perf_counter() - t)
-    if len(pts) < MIN_RIGID_POINTS:
-        return []
-    tree = cKDTree(pts[:, :2])
-    lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
-    dets = []
-    for cls, m in models.items():
-        dets += _class_hypotheses(cls, m, pts, tree, lo, hi, p, stats)
-    stats["hypotheses"] += len(dets)
-    t = time.perf_counter()
-    dets.sort(key=lambda h: -h.score)
-    kept = []
+    dets = [[] for _ in rankings]
+    if len(pts) >= MIN_RIGID_POINTS:
+        tree = cKDTree(pts[:, :2])
+        lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
+        for cls, m in models.items():
+            for k, hyps in enumerate(_class_hypotheses(cls, m, pts, tree, lo, hi, p, rankings, stats)):
+                dets[k] += hyps
+    for s in stats[1:]:
+        for key in _SHARED_COUNTS:
+            s[key] = stats[0][key] if key != "capped" else dict(stats[0][key])
+        for stage in _SHARED_STAGES:
+            s["seconds"][stage] += stats[0]["seconds"][stage]
     radius_m = {cls: m.radius_m for cls, m in models.items()}
-    for h in dets:
-        if not is_duplicate(h, kept, radius_m, p):
-            kept.append(h)
-    stats["seconds"]["selection"] += time.perf_counter() - t
-    return kept
+    out = []
+    for r, hyps, s in zip(rankings, dets, stats):
+        s["hypotheses"] += len(hyps)
+        t = time.perf_counter()
+        hyps.sort(key=lambda h: -h.score)
+        kept = []
+        for h in hyps:
+            if not is_duplicate(h, kept, radius_m, r):
+                kept.append(h)
+        s["seconds"]["selection"] += time.perf_counter() - t
+        out.append(kept)
+    return out
