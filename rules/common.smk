@@ -184,7 +184,6 @@ def _alternation(names):
     return "|".join(re.escape(n) for n in names) or "(?!)"
 
 
-PER_SCENE_RE = _alternation(n for n, m in METHOD.items() if m.runner == "per_scene")
 PER_DATASET_RE = _alternation(n for n, m in METHOD.items() if m.runner == "per_dataset")
 TRAINED_RE = _alternation(TRAINED)
 
@@ -356,14 +355,6 @@ def per_scene_alone_re(dataset):
     )
 
 
-def shared_detect_inputs(dataset, names):
-    """Inputs of the job of methods sharing a run on a dataset: its scenes and their resources."""
-    out = {"scenes": dataset_scene_files(dataset, "npz")}
-    for n in names:
-        out.update(method_resources(n))
-    return out
-
-
 def eval_files(methods=None):
     """metrics.json of every method (default: all configured) on every evaluation dataset it runs on,
     and the comparison (bootstrap intervals, scorings) of each evaluation dataset."""
@@ -378,10 +369,16 @@ def eval_files(methods=None):
 def dataset_detect_inputs(dataset):
     """Input function of a dataset's detection job: every scene of the dataset and the method's
     resources (both detection rules, per-scene and per-dataset methods, use it)."""
-    return lambda w: {
-        "scenes": dataset_scene_files(dataset, "npz"),
-        **method_resources(w.method),
-    }
+    return lambda w: detect_inputs(dataset, [w.method])
+
+
+def detect_inputs(dataset, names):
+    """Inputs of a detection job of the methods `names` on a dataset: its scenes and the methods'
+    resources."""
+    out = {"scenes": dataset_scene_files(dataset, "npz")}
+    for n in names:
+        out.update(method_resources(n))
+    return out
 
 
 def method_resources(method):

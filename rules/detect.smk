@@ -51,7 +51,7 @@ for _dataset, _groups in SHARED_RUNS.items():
             name:
                 f"detect_scenes_{_dataset}_shared{_k}"
             input:
-                **shared_detect_inputs(_dataset, _names),
+                **detect_inputs(_dataset, _names),
             output:
                 detections=[
                     detection_file(m, _dataset, s)

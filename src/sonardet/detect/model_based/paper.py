@@ -235,19 +235,14 @@ def check_rankings(p: dict, rankings: list) -> None:
                              f"{differ}")
 
 
-def detect_paper(xyz: np.ndarray, models: dict, p: dict, stats: dict) -> list:
-    """Run the paper pipeline on local-frame points (N,3, m) with the class models (class -> ClassModel);
-    returns the scored Hypothesis objects that survive the duplicate removal, best first, and adds
-    its counts and per-stage seconds to `stats`."""
-    return detect_paper_rankings(xyz, models, [p], [stats])[0]
-
-
 def detect_paper_rankings(xyz: np.ndarray, models: dict, rankings: list, stats: list) -> list:
-    """`detect_paper` for several settings that differ only in RANKING_KEYS (`check_rankings`), sharing
-    one seabed, one set of windows and one registration of each: a list of kept hypotheses per
-    setting, each what `detect_paper` gives for it alone, and its counts and seconds added to the
-    stats dict of the same index (the shared stages' counts and seconds in each; scoring and
-    selection its own). Raises ValueError for settings that differ elsewhere or an unknown score."""
+    """Run the paper pipeline on local-frame points (N,3, m) with the class models (class -> ClassModel)
+    for one or more settings that differ only in RANKING_KEYS (`check_rankings`), sharing one seabed,
+    one set of windows and one registration of each. Returns, per setting, the scored Hypothesis
+    objects that survive its duplicate removal, best first (the same as a run of that setting
+    alone), and adds its counts and per-stage seconds to the stats dict of the same index (the
+    shared stages' counts and seconds in each; scoring and selection its own). Raises ValueError
+    for settings that differ elsewhere or an unknown score."""
     if not rankings or len(rankings) != len(stats):
         raise ValueError(f"detect_paper_rankings needs one stats dict per setting ({len(rankings)} settings, "
                          f"{len(stats)} stats)")
