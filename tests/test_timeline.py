@@ -2,9 +2,13 @@
 (sonardet.workflow), read in place of Snakemake's sampled cpu_time; the idle core-time from the
 jobs' threads; the blocking chain."""
 
+import gc
 import json
 import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -86,3 +90,36 @@ def test_a_broken_record_is_refused_naming_it(tmp_path):
     rec.write_text("{not json")
     with pytest.raises(ValueError, match="x.usage.json"):
         read_benchmarks(tmp_path / "benchmarks")
+
+
+_SCRIPT = """
+import gc, json, sys
+from types import SimpleNamespace
+from sonardet.workflow import rule_logging
+snakemake = SimpleNamespace(log=[sys.argv[1]], threads=1)
+before = gc.get_freeze_count()
+with rule_logging({smk}, "rule"):
+    pass
+print(json.dumps([before, gc.get_freeze_count()]))
+"""
+
+
+@pytest.mark.parametrize("own", [True, False])
+def test_only_a_jobs_own_script_process_skips_the_exit_collection(tmp_path, own):
+    """In the process Snakemake runs a rule's script in, the job's end freezes the objects (the
+    interpreter's last collection skips them); a test or library calling in is left alone."""
+    src = Path(__file__).resolve().parents[1] / "src"
+    smk = "snakemake" if own else "SimpleNamespace(log=[sys.argv[1]], threads=1)"
+    out = subprocess.run([sys.executable, "-c", _SCRIPT.replace("{smk}", smk), str(tmp_path / "a.log")],
+                         capture_output=True, text=True, check=True, env={**os.environ, "PYTHONPATH": str(src)})
+    before, after = json.loads(out.stdout.strip().splitlines()[-1])
+    assert before == 0
+    assert (after > 0) == own
+    assert usage_path(tmp_path / "a.log").exists()  # the record is written either way
+
+
+def test_a_test_process_calling_a_job_is_not_frozen(tmp_path):
+    before = gc.get_freeze_count()
+    with rule_logging(SimpleNamespace(log=[str(tmp_path / "c.log")], threads=1), "rule"):
+        pass
+    assert gc.get_freeze_count() == before
