@@ -40,3 +40,10 @@ def test_timing_run(tmp_path):
     row = out["per_script"]["evaluate"]
     assert row["wall_s"] > 0 and row["cpu_s"] > 0
     assert (tmp_path / "t.json").read_text().count("evaluate") == 1
+
+
+def test_exit_timing_run():
+    """--exit times the interpreter's end after a script's imports, default and with frozen objects:
+    both positive and short (a script of light imports)."""
+    row = main(["--repeat", "1", "--scripts", "evaluate", "--exit"])["per_script"]["evaluate"]
+    assert 0 < row["exit_s"] < 5 and 0 < row["exit_frozen_s"] < 5
