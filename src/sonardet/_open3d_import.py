@@ -24,6 +24,7 @@ import importlib.machinery
 import importlib.util
 import os
 import sys
+import threading
 import types
 
 __all__ = ["MODULE", "install", "load_real"]
@@ -32,10 +33,17 @@ __all__ = ["MODULE", "install", "load_real"]
 MODULE = "open3d.visualization.draw_plotly"
 #: Its names that ``open3d.visualization`` imports at start-up (``from .draw_plotly import ...``).
 _REEXPORTED = ("get_plotly_fig", "draw_plotly", "draw_plotly_server")
+#: One thread loads the real module; another asking meanwhile waits for it.
+_LOCK = threading.Lock()
 
 
 def load_real() -> types.ModuleType:
     """The real ``open3d.visualization.draw_plotly`` module, imported now if only the stand-in was."""
+    with _LOCK:
+        return _load_real()
+
+
+def _load_real() -> types.ModuleType:
     mod = sys.modules.get(MODULE)
     if mod is not None and not getattr(mod, "__sonardet_stand_in__", False):
         return mod
