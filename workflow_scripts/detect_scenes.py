@@ -29,15 +29,10 @@ with job(snakemake, "detect_scenes") as log:  # noqa: F821
             raise RuntimeError(f"{name}: the job's scenes and detection files differ in order or ids")
     family = methods.family(run[0].family)
     resources = job_resources(smk, run[0])
-    if len(run) == 1:
-        single = family.load(run[0], resources)
-        detector = lambda xyz: [single(xyz)]  # noqa: E731
-        build = getattr(single, "build_seconds", 0.0)
-    else:
-        detector = family.load_shared(run, resources)
-        build = getattr(detector, "build_seconds", 0.0)
+    detector = family.load_shared(run, resources)
+    if len(run) > 1:
         log.info("one run for %s (they share their work up to the ranking)", ", ".join(names))
-    build_s = float(build) / max(n, 1)
+    build_s = float(getattr(detector, "build_seconds", 0.0)) / max(n, 1)
     results = [[] for _ in run]
     for i, npz in enumerate(scenes, 1):
         scene = Path(npz).stem

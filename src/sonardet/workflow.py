@@ -49,10 +49,9 @@ def rule_logging(smk, name: str):
         atomic_write_text(usage_path(smk.log[0]), json.dumps(usage) + "\n")  # exact CPU (sonardet.usage)
     if is_script_process(smk):
         # The process ends with the job: the interpreter's last garbage collection would walk every
-        # object the imports made (PyTorch's, Open3D's) to free nothing the job needs: 0.26-0.75 s of
-        # an exit (scene 0.30 -> 0.04 s, `ours` 0.41 -> 0.05 s, SASA inference 0.75 -> 0.16 s, the
-        # project's 2-core VM). Frozen objects are left out of it; everything else of an exit
-        # (atexit handlers, file closing, thread joins) runs as before.
+        # object the imports made (PyTorch's, Open3D's) to free nothing the job needs (timed by
+        # `benchmarks/job_startup.py --exit`). Frozen objects are left out of it; everything else of
+        # an exit (atexit handlers, file closing, thread joins) runs as before.
         gc.freeze()
 
 

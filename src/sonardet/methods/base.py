@@ -147,11 +147,11 @@ class MethodFamily:
         return None
 
     def load_shared(self, methods: list[Method], resources: Resources) -> Callable[[np.ndarray], list]:
-        """One detector for methods of one :meth:`share_key`: xyz -> a list of (detections, stats), one
-        per method in order, each the detections of the method's own detector (:meth:`load`). Default:
-        each method's detector in turn."""
-        detectors = [self.load(m, resources) for m in methods]
-        return lambda xyz: [d(xyz) for d in detectors]
+        """One detector for methods of one :meth:`share_key` (or a single method): xyz -> a list of
+        (detections, stats), one per method in order, each the detections of the method's own detector
+        (:meth:`load`); its ``build_seconds`` is the time its models took. Default: each method's
+        detector in turn."""
+        return _InTurn([self.load(m, resources) for m in methods])
 
     def detect_dataset(self, method: Method, resources: Resources, scene_paths) -> tuple[dict, dict]:
         """Detections of every scene file (scene id -> list) and a timing dict {n_scenes,
@@ -190,3 +190,14 @@ class MethodFamily:
     def style(self, method: Method) -> dict | None:
         """Colour, linestyle and marker of the method in figures (None: a stable spare style)."""
         return self.styles.get(method.name)
+
+
+class _InTurn:
+    """Detectors called one after the other on a cloud: xyz -> [(detections, stats)] in their order."""
+
+    def __init__(self, detectors: list):
+        self.detectors = detectors
+        self.build_seconds = sum(float(getattr(d, "build_seconds", 0.0)) for d in detectors)
+
+    def __call__(self, xyz: np.ndarray) -> list:
+        return [d(xyz) for d in self.detectors]

@@ -84,7 +84,10 @@ class ModelBased(MethodFamily):
 
     def load_shared(self, methods: list[Method], resources: Resources):
         """One 'paper' detector registering each scene once for all `methods` (same share key), ranking
-        the fits for each (`ModelBasedDetector.rankings`)."""
+        the fits for each (`ModelBasedDetector.rankings`); a single method (either variant) runs on its
+        own detector."""
+        if len(methods) == 1:
+            return super().load_shared(methods, resources)
         from ..detect.model_based import ModelBasedDetector
         from ..detect.model_based.paper import RANKING_KEYS
 
