@@ -2,7 +2,9 @@
 wall time, total job time, CPU time, idle core-time, the blocking chain (the jobs that set the end
 time) and the seconds per rule; optionally a Gantt figure. Where the run finished (or failed) with
 this DAG's Snakefile, also the Snakemake process's own CPU time against its jobs'
-(``results/benchmarks/snakemake_process.json``, written by its onsuccess / onerror handlers).
+(``results/benchmarks/snakemake_process.json``, written by its onsuccess / onerror handlers), and
+the job time per method (each job counted for the method it trains, runs, evaluates or ablates; the
+scene simulations and the rest apart; ``sonardet.report.timeline.job_method``).
 
 With ``--dag`` (run from the workflow folder with the run's config) it also asks Snakemake for the
 job graph (a dry run with --forceall) and reports the dependency critical path: the chain of jobs,
@@ -90,6 +92,10 @@ def main() -> int:
     for rule, v in s["per_rule"].items():
         print(f"  {rule:36s} {v['sum_s']:8.0f} s  {v['jobs']:4d}  {v['max_s']:7.1f} s  {v['cpu_s']:8.0f} s CPU"
               f"  {v['startup_cpu_s']:6.0f} s start-up")
+    print("seconds per method (sonardet.report.timeline.job_method: its trainings, detections, evaluations and "
+          "ablation points; wall sum, jobs, CPU sum, methods):")
+    for group, v in s["per_method"].items():
+        print(f"  {group:36s} {v['sum_s']:8.0f} s  {v['jobs']:4d}  {v['cpu_s']:8.0f} s CPU  {', '.join(v['methods'])}")
     if args.png:
         plot_gantt(df, args.png, args.cores)
     if args.json:

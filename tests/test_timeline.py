@@ -13,7 +13,14 @@ from types import SimpleNamespace
 
 import pytest
 
-from sonardet.report.timeline import blocking_chain, read_benchmarks, run_summary, summary_lines
+from sonardet.report.timeline import (
+    blocking_chain,
+    job_method,
+    method_group,
+    read_benchmarks,
+    run_summary,
+    summary_lines,
+)
 from sonardet.usage import job_usage, usage_path
 from sonardet.workflow import rule_logging
 
@@ -81,6 +88,56 @@ def test_exact_records_replace_the_sampled_cpu_and_threads_count_in_the_idle_tim
     assert s["startup_cpu_s"] == 1.5 and s["startup_jobs"] == 1  # the sampled jobs have no start-up figure
     assert any("before the jobs' own work" in line and "1 jobs recorded it" in line for line in summary_lines(s))
     assert list(blocking_chain(df)["job"])[-1] in {"train/m", "detect/b"}
+
+
+def test_job_time_is_split_by_method(tmp_path):
+    t0 = 1_700_000_000.0
+    _bench(tmp_path, "train/sasa_100.tsv", 100.0, 90.0, t0 + 100)
+    _bench(tmp_path, "detect_dataset/sasa_25/dev.tsv", 5.0, 4.0, t0 + 105)
+    _bench(tmp_path, "detect_scenes/model_based_paper+model_based_paper_tight/synthetic.tsv", 60.0, 58.0, t0 + 60)
+    _bench(tmp_path, "evaluate/model_based_paper_tight/synthetic.tsv", 1.0, 1.0, t0 + 61)
+    _bench(tmp_path, "ablation/fewer_points.tsv", 30.0, 29.0, t0 + 130)
+    _bench(tmp_path, "ablation/reference.tsv", 1.0, 1.0, t0 + 131)
+    _bench(tmp_path, "simulate_scene/s0001.tsv", 8.0, 7.0, t0 + 8)
+    _bench(tmp_path, "simulate_scenes/realism.tsv", 20.0, 19.0, t0 + 28)
+    _bench(tmp_path, "report.tsv", 3.0, 3.0, t0 + 140)
+    points = tmp_path / "ablation" / "points"
+    points.mkdir(parents=True)
+    # the point's name says nothing of its method: the point file does
+    (points / "fewer_points.json").write_text(json.dumps({"name": "fewer_points", "method": "sasa", "fraction": 25}))
+    df = read_benchmarks(tmp_path / "benchmarks")
+    by_job = dict(zip(df["job"], df["method"]))
+    assert by_job["train/sasa_100"] == "sasa_100"
+    assert by_job["detect_scenes/model_based_paper+model_based_paper_tight/synthetic"] == "model_based_paper"
+    assert by_job["ablation/fewer_points"] == "sasa"
+    assert by_job["ablation/reference"] == "(other)" and by_job["report"] == "(other)"
+    assert by_job["simulate_scene/s0001"] == by_job["simulate_scenes/realism"] == "(scenes)"
+    s = run_summary(df, cores=2)
+    pm = s["per_method"]
+    assert list(pm)[:2] == ["sasa", "model_based_paper"]  # by job time, largest first
+    assert pm["sasa"] == {"jobs": 3, "sum_s": 135.0, "cpu_s": 123.0, "methods": ["sasa", "sasa_100", "sasa_25"]}
+    assert pm["model_based_paper_tight"]["sum_s"] == 1.0  # its evaluation; the shared job is paper's
+    assert pm["(scenes)"]["sum_s"] == 28.0 and pm["(other)"]["jobs"] == 2
+    assert sum(v["sum_s"] for v in pm.values()) == pytest.approx(s["job_s"])
+    lines = summary_lines(s)
+    assert lines[-1].startswith("blocking chain") and any(line.startswith("job time per method: sasa 2.2 min")
+                                                           for line in lines)
+
+
+def test_job_method_and_groups():
+    assert job_method("train/sasa_dr_100") == "sasa_dr_100" and method_group("sasa_dr_100") == "sasa_dr"
+    assert method_group("model_based_ours") == "model_based_ours" and method_group("sasa_25") == "sasa"
+    assert job_method("ablation/unknown_point") == "(other)"  # no point file: not guessed from its name
+    assert job_method("evaluate/model_based_ours/dev") == "model_based_ours"
+
+
+def test_a_broken_ablation_point_file_is_refused_naming_it(tmp_path):
+    _bench(tmp_path, "ablation/p.tsv", 1.0, 0.5, 1_700_000_000.0)
+    points = tmp_path / "ablation" / "points"
+    points.mkdir(parents=True)
+    (points / "p.json").write_text(json.dumps({"name": "p"}))
+    with pytest.raises(ValueError, match="p.json"):
+        read_benchmarks(tmp_path / "benchmarks")
 
 
 def test_a_broken_record_is_refused_naming_it(tmp_path):

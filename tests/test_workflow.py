@@ -249,6 +249,7 @@ def test_snakemake_process_usage_is_recorded(smoke_run):
                            str(smoke_run / "results")], capture_output=True, text=True, check=True)
     assert "Snakemake process (success): own CPU" in proc.stdout, proc.stdout
     assert "before the jobs' own work (interpreter start, imports" in proc.stdout, proc.stdout
+    assert "seconds per method" in proc.stdout and "(scenes)" in proc.stdout, proc.stdout
     # The onstart handler found Snakemake's job-start rate limiter and removed it (a local run).
     assert "job-start rate limit lifted" in (smoke_run / "snakemake_output.txt").read_text()
 
@@ -274,6 +275,10 @@ def test_every_job_records_its_exact_cpu(smoke_run):
     summary = json.loads((smoke_run / "results/report/timeline.json").read_text())
     assert summary["cpu_exact_jobs"] == summary["jobs"] and summary["idle_core_s"] >= 0
     assert summary["startup_jobs"] == summary["jobs"] and 0 < summary["startup_cpu_s"] < summary["cpu_s"]
+    # every job's time is counted for one method group, the plugin's toy method among them
+    per_method = summary["per_method"]
+    assert sum(v["sum_s"] for v in per_method.values()) == pytest.approx(summary["job_s"])
+    assert {"(scenes)", "model_based_ours", "centroid"} <= set(per_method), sorted(per_method)
 
 
 def test_toy_method_from_a_plugin(smoke_run):

@@ -17,6 +17,13 @@ each job's seconds x its threads: what the scheduler left unused), and the job c
 recorded CPU is what the jobs held but did not compute by their records (waiting for files, the GIL
 or a core that another job's threads took, and each interpreter's shutdown after its record).
 
+Job time per method: each job is counted for the detection method it trains, runs, evaluates or
+ablates (`job_method`: the method is in the benchmark path of `train`, `detect_dataset`,
+`detect_scenes` and `evaluate`, and in the ablation point's file for `ablation`; a job shared by
+several methods counts for the first, whose stages the others reuse), the scene simulations as
+`(scenes)` and every other job as `(other)`. Methods are grouped by their name without a trailing
+`_{number}` (`sasa_25`, `sasa_100` -> `sasa`; `sasa_dr_100` -> `sasa_dr`).
+
 The chain reported is the *blocking chain*: from the job that ended last, each step back is the job
 that ended last before this one started, i.e. what this job waited for (a dependency or a free
 core). Its total is the run's wall time minus the gaps in the chain.
@@ -26,6 +33,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import resource
 import time
 from pathlib import Path
@@ -37,23 +45,61 @@ from matplotlib import colormaps
 from ..usage import cpu_seconds, read_usage, usage_path
 from .style import new_figure, write_figure
 
-__all__ = ["PROCESS_FILE", "blocking_chain", "critical_path", "plot_gantt", "process_usage", "read_benchmarks",
-           "read_process_usage", "run_summary", "summary_lines"]
+__all__ = ["PROCESS_FILE", "blocking_chain", "critical_path", "job_method", "method_group", "plot_gantt",
+           "process_usage", "read_benchmarks", "read_point_methods", "read_process_usage", "run_summary",
+           "summary_lines"]
 
 #: Where the workflow records its Snakemake process's own usage (under the benchmark folder), written
 #: by the Snakefile's onsuccess / onerror handlers.
 PROCESS_FILE = "snakemake_process.json"
+#: Rules whose benchmark path names the method(s) right after the rule: train/{method},
+#: detect_dataset/{method}/{dataset}, detect_scenes/{method}[+{method}...]/{dataset}, evaluate/{method}/{dataset}.
+METHOD_RULES = ("train", "detect_dataset", "detect_scenes", "evaluate")
+#: Rules that simulate scenes (the `(scenes)` group of `job_method`).
+SCENE_RULES = ("simulate_scene", "simulate_scenes")
+
+
+def read_point_methods(results) -> dict:
+    """Ablation point name -> its method (`results/ablation/points/{point}.json`, key `method`); empty
+    where the run made no ablation. A point file that is not JSON raises ValueError naming it."""
+    out = {}
+    for p in sorted((Path(results) / "ablation" / "points").glob("*.json")):
+        try:
+            out[p.stem] = str(json.loads(p.read_text())["method"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"{p}: not an ablation point record with a 'method' ({exc!r}); delete it and rerun "
+                             "its ablation job") from None
+    return out
+
+
+def job_method(job: str, point_methods: dict | None = None) -> str:
+    """The method a job (benchmark path without `.tsv`, e.g. `train/sasa_100`) is counted for (module
+    doc): the first method of its path for the method rules, the ablation point's method, `(scenes)`
+    for a scene simulation, `(other)` for the rest."""
+    parts = job.split("/")
+    if parts[0] in METHOD_RULES and len(parts) > 1:
+        return parts[1].split("+")[0]
+    if parts[0] == "ablation" and len(parts) > 1 and parts[1] in (point_methods or {}):
+        return point_methods[parts[1]]
+    return "(scenes)" if parts[0] in SCENE_RULES else "(other)"
+
+
+def method_group(method: str) -> str:
+    """A method's group: its name without a trailing `_{number}` (`sasa_100` -> `sasa`)."""
+    return re.sub(r"_\d+$", "", method)
 
 
 def read_benchmarks(root, logs=None) -> pd.DataFrame:
     """Every `{root}/**/*.tsv` benchmark file as a row: rule (first folder under root), job (the rest of
     the path), start and end (s, epoch), seconds (wall), cpu_s, cpu_exact (True where the job's usage
     record under `logs` gave cpu_s, False where it is Snakemake's sampled `cpu_time`), threads (from
-    the record, else 1), max_rss_mb; sorted by start. logs: the run's log folder (default: `logs`
-    beside `root`)."""
+    the record, else 1), max_rss_mb, method (`job_method`, the ablation points read from the results
+    folder that holds `root`); sorted by start. logs: the run's log folder (default: `logs` beside
+    `root`)."""
     rows = []
     root = Path(root)
     logs = root.parent / "logs" if logs is None else Path(logs)
+    point_methods = read_point_methods(root.parent)
     for p in sorted(root.rglob("*.tsv")):
         try:
             df = pd.read_csv(p, sep="\t")
@@ -71,9 +117,10 @@ def read_benchmarks(root, logs=None) -> pd.DataFrame:
                      "job": str(rel.with_suffix("")), "start": end - s, "end": end, "seconds": s,
                      "cpu_s": float(cpu) if rec is None else rec["cpu_s"], "cpu_exact": rec is not None,
                      "threads": 1 if rec is None else rec["threads"],
-                     "startup_cpu_s": math.nan if rec is None else rec["startup_cpu_s"], "max_rss_mb": float(rss)})
+                     "startup_cpu_s": math.nan if rec is None else rec["startup_cpu_s"], "max_rss_mb": float(rss),
+                     "method": job_method(str(rel.with_suffix("").as_posix()), point_methods)})
     df = pd.DataFrame(rows, columns=["rule", "job", "start", "end", "seconds", "cpu_s", "cpu_exact", "threads",
-                                     "startup_cpu_s", "max_rss_mb"])
+                                     "startup_cpu_s", "max_rss_mb", "method"])
     return df.sort_values(["start", "job"]).reset_index(drop=True)
 
 
@@ -153,7 +200,8 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
     jobs from their usage records, the others sampled by Snakemake, see the module doc) and the job
     core-time not spent on a CPU, the CPU seconds spent before the jobs' own work (interpreter start,
     imports; summed over the `startup_jobs` whose record has it), jobs, the blocking chain's rules and
-    seconds, and the seconds per rule (sum, sorted)."""
+    seconds, the seconds per rule (sum, sorted) and per method group (`method_group` of the `method`
+    column where `df` has one: jobs, wall and CPU seconds, the methods in it; sorted)."""
     if df.empty:
         return {"jobs": 0}
     wall = float(df["end"].max() - df["start"].min())
@@ -163,6 +211,12 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
     per_rule = df.groupby("rule").agg(count=("seconds", "count"), sum=("seconds", "sum"), max=("seconds", "max"),
                                       cpu=("cpu_s", "sum"), startup=("startup_cpu_s", "sum"),
                                       ).sort_values("sum", ascending=False)
+    per_method = {}
+    if "method" in df.columns:
+        groups = df.assign(group=df["method"].map(method_group)).groupby("group")
+        per_method = {k: {"jobs": int(len(g)), "sum_s": float(g["seconds"].sum()),
+                          "cpu_s": float(np.nansum(g["cpu_s"])), "methods": sorted(set(g["method"]))}
+                      for k, g in sorted(groups, key=lambda kg: (-float(kg[1]["seconds"].sum()), kg[0]))}
     return {"jobs": int(len(df)), "cores": int(cores), "wall_s": wall, "job_s": float(df["seconds"].sum()),
             "job_core_s": core, "idle_core_s": max(0.0, cores * wall - core),
             "utilisation": core / (cores * wall) if wall > 0 else math.nan,
@@ -174,12 +228,14 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
             "chain_s": float(chain["seconds"].sum()),
             "per_rule": {k: {"jobs": int(v["count"]), "sum_s": float(v["sum"]), "max_s": float(v["max"]),
                              "cpu_s": float(v["cpu"]), "startup_cpu_s": float(v["startup"])}
-                         for k, v in per_rule.iterrows()}}
+                         for k, v in per_rule.iterrows()},
+            "per_method": per_method}
 
 
 def summary_lines(s: dict) -> list[str]:
     """The headline of a `run_summary`: wall, job time and idle core-time; CPU in jobs and where it
-    came from; the blocking chain's rules (three lines, minutes)."""
+    came from; the job time per method group (where the summary has it); the blocking chain's rules,
+    always the last line (minutes)."""
     if not s.get("jobs"):
         return ["no benchmark files: no jobs ran"]
     return [f"{s['jobs']} jobs on {s['cores']} cores: wall {s['wall_s'] / 60:.1f} min, job time {s['job_s'] / 60:.1f} "
@@ -190,6 +246,9 @@ def summary_lines(s: dict) -> list[str]:
             f"{s['job_core_off_cpu_s'] / 60:.1f} min of job core-time off that CPU (waiting, interpreter exits)",
             *([f"of that CPU, {s['startup_cpu_s'] / 60:.1f} min before the jobs' own work (interpreter start, imports; "
                f"{s['startup_jobs']} jobs recorded it)"] if s.get("startup_jobs") else []),
+            *(["job time per method: " + ", ".join(f"{k} {v['sum_s'] / 60:.1f} min"
+                                                    for k, v in s["per_method"].items())]
+              if s.get("per_method") else []),
             f"blocking chain ({s['chain_s'] / 60:.1f} min of jobs): " + " -> ".join(c["rule"] for c in s["chain"])]
 
 
