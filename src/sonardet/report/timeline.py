@@ -113,12 +113,13 @@ def read_benchmarks(root, logs=None) -> pd.DataFrame:
         cpu = pd.to_numeric(df.get("cpu_time", pd.Series([np.nan])), errors="coerce").iloc[0]
         rss = pd.to_numeric(df.get("max_rss", pd.Series([np.nan])), errors="coerce").iloc[0]
         rec = read_usage(usage_path(logs / rel.with_suffix(".log")))  # the job's log mirrors its benchmark file
+        job = rel.with_suffix("").as_posix()
         rows.append({"rule": rel.parts[0] if len(rel.parts) > 1 else rel.stem,
-                     "job": str(rel.with_suffix("")), "start": end - s, "end": end, "seconds": s,
+                     "job": job, "start": end - s, "end": end, "seconds": s,
                      "cpu_s": float(cpu) if rec is None else rec["cpu_s"], "cpu_exact": rec is not None,
                      "threads": 1 if rec is None else rec["threads"],
                      "startup_cpu_s": math.nan if rec is None else rec["startup_cpu_s"], "max_rss_mb": float(rss),
-                     "method": job_method(str(rel.with_suffix("").as_posix()), point_methods)})
+                     "method": job_method(job, point_methods)})
     df = pd.DataFrame(rows, columns=["rule", "job", "start", "end", "seconds", "cpu_s", "cpu_exact", "threads",
                                      "startup_cpu_s", "max_rss_mb", "method"])
     return df.sort_values(["start", "job"]).reset_index(drop=True)
@@ -214,9 +215,11 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
     per_method = {}
     if "method" in df.columns:
         groups = df.assign(group=df["method"].map(method_group)).groupby("group")
-        per_method = {k: {"jobs": int(len(g)), "sum_s": float(g["seconds"].sum()),
-                          "cpu_s": float(np.nansum(g["cpu_s"])), "methods": sorted(set(g["method"]))}
-                      for k, g in sorted(groups, key=lambda kg: (-float(kg[1]["seconds"].sum()), kg[0]))}
+        agg = groups.agg(jobs=("seconds", "count"), sum_s=("seconds", "sum"), cpu_s=("cpu_s", "sum"),
+                         methods=("method", lambda m: sorted(set(m))))
+        agg = agg.rename_axis("group").reset_index().sort_values(["sum_s", "group"], ascending=[False, True])
+        per_method = {r.group: {"jobs": int(r.jobs), "sum_s": float(r.sum_s), "cpu_s": float(r.cpu_s),
+                                "methods": list(r.methods)} for r in agg.itertuples()}
     return {"jobs": int(len(df)), "cores": int(cores), "wall_s": wall, "job_s": float(df["seconds"].sum()),
             "job_core_s": core, "idle_core_s": max(0.0, cores * wall - core),
             "utilisation": core / (cores * wall) if wall > 0 else math.nan,
