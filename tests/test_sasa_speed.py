@@ -122,6 +122,32 @@ def test_compact_grouped_mlp_agrees_with_padded():
         assert _rel(m(xyz, q, feats, idx, cnt), ref(xyz, q, feats, idx, cnt)) < 1e-5
 
 
+def test_coordinate_linear_is_the_linear_with_its_gradients():
+    """The coordinate projection's own backward (transposed products) gives the values and gradients of
+    ``F.linear``, for coordinates with and without a gradient (SA layers and the vote SA), and leaves
+    inference to ``F.linear`` itself."""
+    from sonardet.detect.sasa.backbone import coordinate_linear
+
+    g = torch.Generator().manual_seed(8)
+    for R, C, rel_grad in ((5000, 16, False), (700, 128, True)):
+        rel = torch.randn(R, 3, generator=g) * 0.5
+        weight = torch.randn(C, 3, generator=g)
+        up = torch.randn(R, C, generator=g)
+        grads = []
+        for fn in (torch.nn.functional.linear, coordinate_linear):
+            r = rel.clone().requires_grad_(rel_grad)
+            w = weight.clone().requires_grad_()
+            y = fn(r, w)
+            (y * up).sum().backward()
+            grads.append((y.detach(), w.grad, r.grad))
+        (y1, w1, r1), (y2, w2, r2) = grads
+        assert torch.equal(y1, y2)
+        assert _rel(w2, w1) < 1e-5
+        assert (r1 is None and r2 is None) if not rel_grad else _rel(r2, r1) < 1e-5
+        with torch.no_grad():
+            assert torch.equal(coordinate_linear(rel, weight), torch.nn.functional.linear(rel, weight))
+
+
 def test_compact_groups_setting_reaches_every_grouped_mlp():
     tiny = {"n_points": 256, "sa_npoints": [64, 32, 16], "sa_radii_m": [[0.4], [0.8], [1.6]],
             "sa_nsamples": [[8], [8], [8]], "sa_mlps": [[[8]], [[8]], [[8]]], "sa_aggregation": [8, 8, 8],

@@ -43,8 +43,8 @@ try:  # fused CPU kernels of the weighted batch norm (optional: the PyTorch form
 except ImportError:  # pragma: no cover - Numba is a dependency
     kernels = None
 
-__all__ = ["MLP", "GroupedMLP", "GroupRows", "SALayer", "SASABackbone", "batch_norm_rows", "group_rows",
-           "limit_threads", "shared_mlp1d", "weighted_batch_norm_relu"]
+__all__ = ["MLP", "GroupedMLP", "GroupRows", "SALayer", "SASABackbone", "batch_norm_rows", "coordinate_linear",
+           "group_rows", "limit_threads", "shared_mlp1d", "weighted_batch_norm_relu"]
 
 
 @contextmanager
@@ -269,6 +269,35 @@ def weighted_batch_norm_relu(h: torch.Tensor, bn: nn.BatchNorm1d, rows: GroupRow
     return y
 
 
+class _CoordinateLinear(torch.autograd.Function):
+    """``rel @ weight.T`` for coordinates rel (R, 3) with ``weight`` (C, 3): the same function as
+    ``F.linear(rel, weight)``, with the weight gradient computed as ``(rel.T @ g).T``. PyTorch's
+    linear backward computes ``g.T @ rel``, a GEMM whose output is only three columns wide, which MKL
+    runs at 2-4 GFLOP/s on one CPU core (the slowest products of a SASA training step: about 5 % of
+    it in ``DEFAULTS``); the transposed product is the same sums, 2-7x faster. Equal up to float
+    summation order. The input gradient (the vote SA's votes) is ``g @ weight``, as PyTorch's."""
+
+    @staticmethod
+    def forward(ctx, rel, weight):
+        ctx.save_for_backward(rel, weight)
+        return rel @ weight.t()
+
+    @staticmethod
+    def backward(ctx, g):
+        rel, weight = ctx.saved_tensors
+        g_rel = g @ weight if ctx.needs_input_grad[0] else None
+        g_weight = (rel.t() @ g).t() if ctx.needs_input_grad[1] else None
+        return g_rel, g_weight
+
+
+def coordinate_linear(rel: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``F.linear(rel, weight)`` (no bias) of relative coordinates rel (R, 3) in metres with weight
+    (C, 3): (R, C), with a faster backward on 2-D float inputs (:class:`_CoordinateLinear`)."""
+    if rel.dim() == 2 and rel.shape[1] == 3 and weight.dim() == 2 and torch.is_grad_enabled():
+        return _CoordinateLinear.apply(rel, weight)
+    return F.linear(rel, weight)
+
+
 class GroupedMLP(nn.Module):
     """PointNet++ grouped MLP with a decomposed first layer (see module docstring).
 
@@ -315,7 +344,7 @@ class GroupedMLP(nn.Module):
         M = new_xyz.shape[1]
         rows = group_rows(idx, cnt, N)
         rel = xyz.reshape(B * N, 3).index_select(0, rows.point) - new_xyz.reshape(B * M, 3).index_select(0, rows.centre)
-        h = self.w_xyz(rel)  # (R, w0), metres in, features out
+        h = coordinate_linear(rel, self.w_xyz.weight)  # (R, w0), metres in, features out
         if self.w_feat is not None and features is not None:
             h = h + self.w_feat(features).reshape(B * N, -1).index_select(0, rows.point)
         h = weighted_batch_norm_relu(h, self.bn0, rows)
