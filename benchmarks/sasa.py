@@ -96,20 +96,21 @@ def _scene_paths(n: int, synthetic: bool, tmp: Path) -> list[Path]:
     return _synthetic_scenes(n, tmp)
 
 
-def _profile_step(step, dev, rows: int) -> str:
-    """The ``rows`` operators of one training step with the most self time (device time on CUDA)."""
-    import torch
+def _profile_step(step, dev, rows: int, shapes: bool = False) -> str:
+    """The ``rows`` operators of one training step with the most self time (device time on CUDA);
+    with ``shapes``, one row per operator and input shapes (e.g. each matrix product's sizes)."""
     from torch.profiler import ProfilerActivity, profile
 
     acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if dev.type == "cuda" else [])
-    with profile(activities=acts) as prof:
+    with profile(activities=acts, record_shapes=shapes) as prof:
         step(0)
     key = "self_cuda_time_total" if dev.type == "cuda" else "self_cpu_time_total"
-    return prof.key_averages().table(sort_by=key, row_limit=rows)
+    return prof.key_averages(group_by_input_shape=shapes).table(sort_by=key, row_limit=rows)
 
 
 def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: int, threads: int, device: str | None,
-            train_scenes: int, fps_loop: bool, profile_rows: int, parallel_min: int | None, q) -> None:
+            train_scenes: int, fps_loop: bool, profile_rows: int, parallel_min: int | None, q,
+            profile_shapes: bool = False) -> None:
     import torch
 
     from sonardet.detect.sasa import DEFAULTS, STUDY, SASADetector, TrainedSASA, resolve_params
@@ -154,7 +155,7 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
         if i >= warmup:
             times.append(time.perf_counter() - t)
     step_s = float(np.median(times))
-    profile = _profile_step(step, dev, profile_rows) if profile_rows else None
+    profile = _profile_step(step, dev, profile_rows, profile_shapes) if profile_rows else None
     inf = []
     trained = TrainedSASA(model, params, dev)
     for i, s in enumerate(scenes):
@@ -210,6 +211,8 @@ def main(argv=None) -> list[dict]:
                     help="FPS on the PyTorch loop (not the compiled CPU kernel or the Triton CUDA kernel)")
     ap.add_argument("--profile", type=int, default=0, metavar="ROWS",
                     help="profile one more training step and print its ROWS most expensive operators")
+    ap.add_argument("--profile-shapes", action="store_true",
+                    help="with --profile: one row per operator and input shapes (e.g. each matrix product's sizes)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     rows = []
@@ -223,7 +226,8 @@ def main(argv=None) -> list[dict]:
                 q = ctx.Queue()
                 proc = ctx.Process(target=_worker, args=(name, overrides, paths, args.steps, args.warmup,
                                                          args.threads, device, args.train_scenes, args.fps_loop,
-                                                         args.profile, args.parallel_min_elements, q))
+                                                         args.profile, args.parallel_min_elements, q,
+                                                         args.profile_shapes))
                 proc.start()
                 row = q.get()
                 proc.join()

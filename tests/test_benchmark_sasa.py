@@ -25,3 +25,14 @@ def test_a_short_run_reports_its_settings(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "freed memory returned to the system" in printed and "fused kernels parallel from 0 values" in printed
     assert "| fastest |" in printed
+
+
+def test_the_profile_by_input_shape_names_each_product_size(capsys):
+    sasa_benchmark.main(["--configs", "DEFAULTS", "--device", "cpu", "--synthetic", "--n-scenes", "4",
+                         "--steps", "1", "--warmup", "0", "--threads", "1", "--profile", "400",
+                         "--profile-shapes"])
+    printed = capsys.readouterr().out
+    assert "profile of one DEFAULTS step on cpu" in printed
+    # the coordinate projection's weight gradient: a (3, R) x (R, C) product, not (C, R) x (R, 3)
+    mm = [line for line in printed.splitlines() if line.lstrip().startswith("aten::mm") and "[[" in line]
+    assert mm and any("[[3, " in line for line in mm)
