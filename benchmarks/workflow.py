@@ -88,10 +88,10 @@ def main() -> int:
         path, total = critical_path(df, job_graph(args.configfile))
         s["critical_path"], s["critical_path_s"] = path, total
         print(f"dependency critical path ({total / 60:.1f} min of jobs): {' -> '.join(path)}")
-    print("seconds per rule (wall sum, jobs, longest job, CPU sum, CPU before the jobs' own work):")
+    print("seconds per rule (wall sum, jobs, longest job, CPU sum, CPU before the jobs' own work, Numba compilation):")
     for rule, v in s["per_rule"].items():
         print(f"  {rule:36s} {v['sum_s']:8.0f} s  {v['jobs']:4d}  {v['max_s']:7.1f} s  {v['cpu_s']:8.0f} s CPU"
-              f"  {v['startup_cpu_s']:6.0f} s start-up")
+              f"  {v['startup_cpu_s']:6.0f} s start-up  {v['jit_s']:5.0f} s compiling")
     print("seconds per method (sonardet.report.timeline.job_method: its trainings, detections, evaluations and "
           "ablation points; wall sum, jobs, CPU sum, methods):")
     for group, v in s["per_method"].items():

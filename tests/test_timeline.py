@@ -83,11 +83,30 @@ def test_exact_records_replace_the_sampled_cpu_and_threads_count_in_the_idle_tim
     assert s["utilisation"] == pytest.approx(290 / 300)
     assert s["cpu_s"] == pytest.approx(95 + 30 + 30) and s["cpu_exact_jobs"] == 1
     assert s["job_core_off_cpu_s"] == pytest.approx(290 - 155)
-    assert s["per_rule"]["detect"] == {"jobs": 2, "sum_s": 90.0, "max_s": 50.0, "cpu_s": 60.0, "startup_cpu_s": 0.0}
+    assert s["per_rule"]["detect"] == {"jobs": 2, "sum_s": 90.0, "max_s": 50.0, "cpu_s": 60.0, "startup_cpu_s": 0.0,
+                                       "jit_s": 0.0}
     assert s["per_rule"]["train"]["cpu_s"] == 95.0 and s["per_rule"]["train"]["startup_cpu_s"] == 1.5
     assert s["startup_cpu_s"] == 1.5 and s["startup_jobs"] == 1  # the sampled jobs have no start-up figure
+    # a record from before the compilation time was kept has none: no line claims a figure for it
+    assert s["jit_recorded_jobs"] == 0 and not any("Numba" in line for line in summary_lines(s))
     assert any("before the jobs' own work" in line and "1 jobs recorded it" in line for line in summary_lines(s))
     assert list(blocking_chain(df)["job"])[-1] in {"train/m", "detect/b"}
+
+
+def test_numba_compilation_is_summed_from_the_records(tmp_path):
+    t0 = 1_700_000_000.0
+    for k, (jit_s, end) in enumerate([(12.5, 50), (0.0, 60), (30.0, 100)]):
+        _bench(tmp_path, f"detect/j{k}.tsv", 40.0, 39.0, t0 + end)
+        rec = usage_path(tmp_path / "logs" / "detect" / f"j{k}.log")
+        rec.parent.mkdir(parents=True, exist_ok=True)
+        rec.write_text(json.dumps({"cpu_s": 39.0, "threads": 1, "startup_cpu_s": 1.0, "jit_n": int(jit_s > 0),
+                                   "jit_s": jit_s}))
+    _bench(tmp_path, "report.tsv", 3.0, 3.0, t0 + 110)  # no record: no compilation figure
+    s = run_summary(read_benchmarks(tmp_path / "benchmarks"), cores=2)
+    assert s["jit_s"] == pytest.approx(42.5) and s["jit_jobs"] == 2 and s["jit_recorded_jobs"] == 3
+    assert s["per_rule"]["detect"]["jit_s"] == pytest.approx(42.5) and s["per_rule"]["report"]["jit_s"] == 0.0
+    assert any("0.7 min compiling Numba kernels, in 2 jobs" in line and "3 jobs recorded it" in line
+               for line in summary_lines(s))
 
 
 def test_job_time_is_split_by_method(tmp_path):

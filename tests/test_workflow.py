@@ -275,6 +275,8 @@ def test_every_job_records_its_exact_cpu(smoke_run):
     summary = json.loads((smoke_run / "results/report/timeline.json").read_text())
     assert summary["cpu_exact_jobs"] == summary["jobs"] and summary["idle_core_s"] >= 0
     assert summary["startup_jobs"] == summary["jobs"] and 0 < summary["startup_cpu_s"] < summary["cpu_s"]
+    # every job records its Numba compilation time (zero in most), within its CPU
+    assert summary["jit_recorded_jobs"] == summary["jobs"] and 0 <= summary["jit_s"] < summary["cpu_s"]
     # every job's time is counted for one method group, the plugin's toy method among them
     per_method = summary["per_method"]
     assert sum(v["sum_s"] for v in per_method.values()) == pytest.approx(summary["job_s"])

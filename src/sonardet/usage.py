@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import json
 import resource
+import sys
 from pathlib import Path
 
-__all__ = ["cpu_seconds", "job_cpu_seconds", "job_usage", "read_usage", "usage_path"]
+__all__ = ["compilations_note", "cpu_seconds", "job_cpu_seconds", "job_usage", "numba_compilations", "read_usage",
+           "usage_path"]
 
 
 def cpu_seconds(who: int = resource.RUSAGE_SELF) -> float:
@@ -34,27 +36,45 @@ def usage_path(log_path) -> Path:
     return Path(log_path).with_suffix(".usage.json")
 
 
-def job_usage(threads: int, startup_cpu_s: float | None = None) -> dict:
+def job_usage(threads: int, startup_cpu_s: float | None = None, jit: dict | None = None) -> dict:
     """This process's CPU seconds so far (its imports included) plus those of its finished children
     (e.g. tile workers), the threads the job was given and, when given, `startup_cpu_s`: the CPU
     seconds the process had spent when the job's own work began (interpreter start, Snakemake's
-    script preamble, imports)."""
+    script preamble, imports), and `jit`: its Numba compilations (`sonardet.jit.compile_stats`, as
+    ``jit_n`` and ``jit_s``: wall seconds, single-threaded, so about their CPU seconds)."""
     rec = {"cpu_s": job_cpu_seconds(), "threads": int(threads)}
     if startup_cpu_s is not None:
         rec["startup_cpu_s"] = float(startup_cpu_s)
+    if jit is not None:
+        rec["jit_n"], rec["jit_s"] = int(jit["n"]), float(jit["s"])
     return rec
 
 
+def numba_compilations() -> dict:
+    """This process's Numba compilations (`sonardet.jit.compile_stats`); none in a process that never
+    imported the package's kernels (`sonardet.jit` is not imported here for that: it imports Numba)."""
+    jit = sys.modules.get("sonardet.jit")
+    return jit.compile_stats() if jit is not None else {"n": 0, "s": 0.0}
+
+
+def compilations_note(jit: dict) -> str:
+    """``"; N Numba compilations took X s (...)"`` for a log line, empty when there were none."""
+    if not jit["n"]:
+        return ""
+    return (f"; {jit['n']} Numba compilations took {jit['s']:.1f} s of it (the kernels' first use since they "
+            "were installed or changed: cached on disk for later processes)")
+
+
 def read_usage(path) -> dict | None:
-    """The record at `path` as {"cpu_s", "threads" (>= 1), "startup_cpu_s" (NaN in records written
-    before it was kept)}, or None where there is none; a record that cannot be read is refused
-    (ValueError naming the file)."""
+    """The record at `path` as {"cpu_s", "threads" (>= 1), "startup_cpu_s", "jit_s" (Numba compilation
+    seconds; both NaN in records written before they were kept)}, or None where there is none; a
+    record that cannot be read is refused (ValueError naming the file)."""
     path = Path(path)
     if not path.is_file():
         return None
     try:
         rec = json.loads(path.read_text())
         return {"cpu_s": float(rec["cpu_s"]), "threads": max(1, int(rec.get("threads", 1))),
-                "startup_cpu_s": float(rec.get("startup_cpu_s", "nan"))}
+                "startup_cpu_s": float(rec.get("startup_cpu_s", "nan")), "jit_s": float(rec.get("jit_s", "nan"))}
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{path}: not a job's usage record ({exc}); delete it and rerun its job") from None

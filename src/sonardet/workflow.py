@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 from .determinism import describe
 from .io.atomic import atomic_write_text
 from .plugins import load_plugins
-from .usage import job_cpu_seconds, job_usage, usage_path
+from .usage import compilations_note, job_cpu_seconds, job_usage, numba_compilations, usage_path
 
 if TYPE_CHECKING:
     from .methods import Method, Resources
@@ -42,9 +42,11 @@ def rule_logging(smk, name: str):
     except Exception:
         log.error("failed:\n%s", traceback.format_exc())
         raise
-    usage = job_usage(_threads(smk), startup_cpu_s)
+    jit = numba_compilations()
+    usage = job_usage(_threads(smk), startup_cpu_s, jit)
     log.info("done in %.2f s (the job's process: %.2f s of CPU since it started, %.2f s of it before the "
-             "job's work: interpreter, imports)", time.perf_counter() - t0, usage["cpu_s"], startup_cpu_s)
+             "job's work: interpreter, imports)%s", time.perf_counter() - t0, usage["cpu_s"], startup_cpu_s,
+             compilations_note(jit))
     if getattr(smk, "log", None):
         atomic_write_text(usage_path(smk.log[0]), json.dumps(usage) + "\n")  # exact CPU (sonardet.usage)
     if is_script_process(smk):

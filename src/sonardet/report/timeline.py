@@ -118,10 +118,11 @@ def read_benchmarks(root, logs=None) -> pd.DataFrame:
                      "job": job, "start": end - s, "end": end, "seconds": s,
                      "cpu_s": float(cpu) if rec is None else rec["cpu_s"], "cpu_exact": rec is not None,
                      "threads": 1 if rec is None else rec["threads"],
-                     "startup_cpu_s": math.nan if rec is None else rec["startup_cpu_s"], "max_rss_mb": float(rss),
+                     "startup_cpu_s": math.nan if rec is None else rec["startup_cpu_s"],
+                     "jit_s": math.nan if rec is None else rec["jit_s"], "max_rss_mb": float(rss),
                      "method": job_method(job, point_methods)})
     df = pd.DataFrame(rows, columns=["rule", "job", "start", "end", "seconds", "cpu_s", "cpu_exact", "threads",
-                                     "startup_cpu_s", "max_rss_mb", "method"])
+                                     "startup_cpu_s", "jit_s", "max_rss_mb", "method"])
     return df.sort_values(["start", "job"]).reset_index(drop=True)
 
 
@@ -194,13 +195,21 @@ def critical_path(df: pd.DataFrame, deps: dict) -> tuple[list[str], float]:
     return list(reversed(path)), best[end][0]
 
 
+def _jit_summary(df: pd.DataFrame) -> dict:
+    """Seconds of Numba compilation summed over the jobs whose usage record has it (``jit_s``), the
+    jobs that compiled anything (``jit_jobs``) and those that recorded it (``jit_recorded_jobs``)."""
+    jit = df["jit_s"] if "jit_s" in df.columns else pd.Series(dtype=float)
+    return {"jit_s": float(np.nansum(jit)), "jit_jobs": int((jit > 0).sum()), "jit_recorded_jobs": int(jit.notna().sum())}
+
+
 def run_summary(df: pd.DataFrame, cores: int) -> dict:
     """Wall time (s, first start to last end), total job time (s, sum of wall seconds), job core-time
     (s, each job's wall seconds x its threads), idle core-time (cores x wall - job core-time, s: no job
     on the core), utilisation (job core-time / (cores x wall)), CPU time (s; `cpu_exact_jobs` of the
     jobs from their usage records, the others sampled by Snakemake, see the module doc) and the job
     core-time not spent on a CPU, the CPU seconds spent before the jobs' own work (interpreter start,
-    imports; summed over the `startup_jobs` whose record has it), jobs, the blocking chain's rules and
+    imports; summed over the `startup_jobs` whose record has it), the seconds of Numba compilation
+    (`_jit_summary`), jobs, the blocking chain's rules and
     seconds, the seconds per rule (sum, sorted) and per method group (`method_group` of the `method`
     column where `df` has one: jobs, wall and CPU seconds, the methods in it; sorted)."""
     if df.empty:
@@ -210,7 +219,7 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
     core = float((df["seconds"] * df["threads"]).sum())
     chain = blocking_chain(df)
     per_rule = df.groupby("rule").agg(count=("seconds", "count"), sum=("seconds", "sum"), max=("seconds", "max"),
-                                      cpu=("cpu_s", "sum"), startup=("startup_cpu_s", "sum"),
+                                      cpu=("cpu_s", "sum"), startup=("startup_cpu_s", "sum"), jit=("jit_s", "sum"),
                                       ).sort_values("sum", ascending=False)
     per_method = {}
     if "method" in df.columns:
@@ -226,11 +235,12 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
             "cpu_s": cpu, "cpu_exact_jobs": int(df["cpu_exact"].sum()), "job_core_off_cpu_s": max(0.0, core - cpu),
             "startup_cpu_s": float(np.nansum(df["startup_cpu_s"])),
             "startup_jobs": int(df["startup_cpu_s"].notna().sum()),
+            **_jit_summary(df),
             "chain": [{"job": r.job, "rule": r.rule, "start_s": float(r.start - df["start"].min()),
                        "seconds": float(r.seconds)} for r in chain.itertuples()],
             "chain_s": float(chain["seconds"].sum()),
             "per_rule": {k: {"jobs": int(v["count"]), "sum_s": float(v["sum"]), "max_s": float(v["max"]),
-                             "cpu_s": float(v["cpu"]), "startup_cpu_s": float(v["startup"])}
+                             "cpu_s": float(v["cpu"]), "startup_cpu_s": float(v["startup"]), "jit_s": float(v["jit"])}
                          for k, v in per_rule.iterrows()},
             "per_method": per_method}
 
@@ -249,6 +259,9 @@ def summary_lines(s: dict) -> list[str]:
             f"{s['job_core_off_cpu_s'] / 60:.1f} min of job core-time off that CPU (waiting, interpreter exits)",
             *([f"of that CPU, {s['startup_cpu_s'] / 60:.1f} min before the jobs' own work (interpreter start, imports; "
                f"{s['startup_jobs']} jobs recorded it)"] if s.get("startup_jobs") else []),
+            *([f"of that CPU, {s['jit_s'] / 60:.1f} min compiling Numba kernels, in {s['jit_jobs']} jobs (their first use "
+               f"since they were installed or changed; cached on disk after; {s['jit_recorded_jobs']} jobs recorded it)"]
+              if s.get("jit_recorded_jobs") else []),
             *(["job time per method: " + ", ".join(f"{k} {v['sum_s'] / 60:.1f} min"
                                                     for k, v in s["per_method"].items())]
               if s.get("per_method") else []),
