@@ -209,7 +209,7 @@ def _run_detect(args) -> int:
     import time
 
     from .survey import OutputPaths, SurveySource, detect_survey_file
-    from .usage import numba_compilations
+    from .usage import compilations_note, numba_compilations
 
     t0 = time.perf_counter()
     if args.jobs is not None and args.jobs < 1:
@@ -240,10 +240,9 @@ def _run_detect(args) -> int:
           f"detection(s) ({n_acc} accepted; {kept}), {run.method}, {res.detect_seconds:.1f} s detection "
           f"({res.soundings_per_second:.0f} soundings/s{jobs}), {time.perf_counter() - t0:.1f} s total, coordinates "
           f"in {frame} -> {args.out}")
-    jit = numba_compilations()
-    if jit["n"]:  # in this process; tile workers compile (and cache) their own on a first run
-        print(f"sonardet detect: {jit['n']} Numba compilations took {jit['s']:.1f} s of it: the kernels' first use "
-              "since they were installed, cached on disk for later runs")
+    note = compilations_note(numba_compilations())  # this process's; tile workers compile (and cache) their own
+    if note:
+        print(f"sonardet detect: {note}")
     return 0
 
 

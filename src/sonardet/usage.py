@@ -58,10 +58,10 @@ def numba_compilations() -> dict:
 
 
 def compilations_note(jit: dict) -> str:
-    """``"; N Numba compilations took X s (...)"`` for a log line, empty when there were none."""
+    """``"N Numba compilations took X s (...)"`` for a log or summary line, empty when there were none."""
     if not jit["n"]:
         return ""
-    return (f"; {jit['n']} Numba compilations took {jit['s']:.1f} s of it (the kernels' first use since they "
+    return (f"{jit['n']} Numba compilations took {jit['s']:.1f} s of it (the kernels' first use since they "
             "were installed or changed: cached on disk for later processes)")
 
 

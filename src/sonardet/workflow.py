@@ -44,9 +44,10 @@ def rule_logging(smk, name: str):
         raise
     jit = numba_compilations()
     usage = job_usage(_threads(smk), startup_cpu_s, jit)
+    note = compilations_note(jit)
     log.info("done in %.2f s (the job's process: %.2f s of CPU since it started, %.2f s of it before the "
              "job's work: interpreter, imports)%s", time.perf_counter() - t0, usage["cpu_s"], startup_cpu_s,
-             compilations_note(jit))
+             f"; {note}" if note else "")
     if getattr(smk, "log", None):
         atomic_write_text(usage_path(smk.log[0]), json.dumps(usage) + "\n")  # exact CPU (sonardet.usage)
     if is_script_process(smk):

@@ -198,7 +198,7 @@ def critical_path(df: pd.DataFrame, deps: dict) -> tuple[list[str], float]:
 def _jit_summary(df: pd.DataFrame) -> dict:
     """Seconds of Numba compilation summed over the jobs whose usage record has it (``jit_s``), the
     jobs that compiled anything (``jit_jobs``) and those that recorded it (``jit_recorded_jobs``)."""
-    jit = df["jit_s"] if "jit_s" in df.columns else pd.Series(dtype=float)
+    jit = df["jit_s"]
     return {"jit_s": float(np.nansum(jit)), "jit_jobs": int((jit > 0).sum()), "jit_recorded_jobs": int(jit.notna().sum())}
 
 
