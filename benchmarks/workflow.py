@@ -72,8 +72,16 @@ def main() -> int:
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     # Every job of the finished run, its last one (run_timeline) included: it is part of the run's wall time.
-    df = read_benchmarks(Path(args.results) / "benchmarks")
+    try:
+        df = read_benchmarks(Path(args.results) / "benchmarks")
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"workflow.py: {exc}", file=sys.stderr)
+        return 2
     s = run_summary(df, args.cores)
+    if not s["jobs"]:
+        print(f"workflow.py: {Path(args.results) / 'benchmarks'} holds no benchmark file: no job of a run finished "
+              "there yet", file=sys.stderr)
+        return 1
     print("\n".join(summary_lines(s)[:-1]))  # its own chain lines follow
     proc = read_process_usage(Path(args.results) / "benchmarks")
     if proc is not None:

@@ -56,6 +56,57 @@ def test_a_job_records_its_cpu_and_threads_at_its_end(tmp_path):
     assert "of CPU since it started" in log.read_text() and "before the job's work" in log.read_text()
 
 
+def test_a_jobs_record_holds_its_end_time(tmp_path):
+    log = tmp_path / "e.log"
+    before = time.time()
+    with rule_logging(SimpleNamespace(log=[str(log)], threads=1), "rule"):
+        pass
+    rec = json.loads(usage_path(log).read_text())
+    assert before <= rec["end_epoch_s"] <= time.time()
+
+
+def test_a_copy_that_lost_the_files_times_keeps_the_time_line_from_the_records(tmp_path):
+    """Jobs timed by their records keep their times when a copy (cp -r) resets the files' modification
+    times; jobs timed by the files alone are flagged, not reported as the run's time line."""
+    t0 = 1_700_000_000.0
+    jobs = [("simulate_scene/a.tsv", 30.0, t0 + 30), ("simulate_scene/b.tsv", 30.0, t0 + 30),
+            ("train/m.tsv", 50.0, t0 + 80), ("report.tsv", 5.0, t0 + 85)]
+    for rel, wall_s, end in jobs:
+        _bench(tmp_path, rel, wall_s, wall_s, end)
+        rec = usage_path(tmp_path / "logs" / rel.replace(".tsv", ".log"))
+        rec.parent.mkdir(parents=True, exist_ok=True)
+        rec.write_text(json.dumps({"cpu_s": wall_s, "threads": 1, "end_epoch_s": end}))
+    before = run_summary(read_benchmarks(tmp_path / "benchmarks"), cores=2)
+    assert before["wall_s"] == pytest.approx(85.0) and not before["overfull"] and before["ends_from_files"] == 0
+    for p in (tmp_path / "benchmarks").rglob("*.tsv"):  # what a copy without times does
+        os.utime(p, (t0 + 5000, t0 + 5000))
+    df = read_benchmarks(tmp_path / "benchmarks")
+    assert set(df["end_from"]) == {"record"}
+    assert run_summary(df, cores=2)["wall_s"] == pytest.approx(85.0)
+    for rec in (tmp_path / "logs").rglob("*.usage.json"):  # records from before the end time was kept
+        rec.write_text(json.dumps({"cpu_s": 1.0, "threads": 1}))
+    df = read_benchmarks(tmp_path / "benchmarks")
+    assert set(df["end_from"]) == {"file"}
+    s = run_summary(df, cores=2)
+    assert s["overfull"] and s["ends_from_files"] == 4  # 115 s of jobs in 50 s on 2 cores: impossible
+    lines = summary_lines(s)
+    assert lines[1].startswith("NOT A TIME LINE OF THIS RUN") and "4 of 4 jobs" in lines[1] and "cp -p" in lines[1]
+    assert not any(line.startswith("NOT A TIME LINE") for line in summary_lines(before))
+
+
+def test_a_missing_benchmark_folder_is_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no benchmark folder"):
+        read_benchmarks(tmp_path / "nothing" / "benchmarks")
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "workflow.py"
+    out = subprocess.run([sys.executable, str(script), "--results", str(tmp_path / "nothing")], capture_output=True,
+                         text=True)
+    assert out.returncode == 2 and "no benchmark folder" in out.stderr and "Traceback" not in out.stderr
+    (tmp_path / "empty" / "benchmarks").mkdir(parents=True)
+    out = subprocess.run([sys.executable, str(script), "--results", str(tmp_path / "empty")], capture_output=True,
+                         text=True)
+    assert out.returncode == 1 and "holds no benchmark file" in out.stderr and "Traceback" not in out.stderr
+
+
 def test_a_failed_job_leaves_no_record(tmp_path):
     log = tmp_path / "b.log"
     with pytest.raises(RuntimeError):

@@ -2,9 +2,13 @@
 the total job time, the idle core-time, the chain of jobs that set the end time, and a Gantt figure.
 
 Each benchmark file (`{root}/{rule}/{wildcards...}.tsv`) holds a job's wall seconds (`s`) and CPU
-seconds (`cpu_time`); the file's modification time is when the job ended, so it started `s` seconds
-before. (Snakemake records no start times; the main log has them only to the second.) Meaningful
-for a run that made every job (a fresh run); after a partial rerun the old jobs keep their old times.
+seconds (`cpu_time`). A job ended when its usage record says (`end_epoch_s`, below), else at the
+file's modification time (records written before the end time was kept), and started `s` seconds
+before. (Snakemake records no start times; the main log has them only to the second.) A copy of the
+results that did not keep the files' times (`cp -r`) moves every modification time to the copy's:
+the record's time survives it; a run timed from such files alone holds more job core-time than its
+cores had, which the summary names instead of reporting it as the run's. Meaningful for a run that
+made every job (a fresh run); after a partial rerun the old jobs keep their old times.
 
 Snakemake samples `cpu_time` (every second for a job's first 30 s, then every 30 s), so a long job's
 figure misses up to 30 s: in a default run the sampled CPU summed to 77 of the jobs' 90 minutes. Each
@@ -57,6 +61,9 @@ PROCESS_FILE = "snakemake_process.json"
 METHOD_RULES = ("train", "detect_dataset", "detect_scenes", "evaluate")
 #: Rules that simulate scenes (the `(scenes)` group of `job_method`).
 SCENE_RULES = ("simulate_scene", "simulate_scenes")
+#: Job core-time above cores x wall by more than this share is impossible for a run on that many
+#: cores: the summary flags it (`run_summary`, key ``overfull``) rather than report it as the run's.
+OVERFULL_TOLERANCE = 0.02
 
 
 def read_point_methods(results) -> dict:
@@ -94,10 +101,14 @@ def read_benchmarks(root, logs=None) -> pd.DataFrame:
     the path), start and end (s, epoch), seconds (wall), cpu_s, cpu_exact (True where the job's usage
     record under `logs` gave cpu_s, False where it is Snakemake's sampled `cpu_time`), threads (from
     the record, else 1), max_rss_mb, method (`job_method`, the ablation points read from the results
-    folder that holds `root`); sorted by start. logs: the run's log folder (default: `logs` beside
-    `root`)."""
+    folder that holds `root`), end_from ('record' where the job's usage record gave its end time,
+    'file' where the benchmark file's modification time did); sorted by start. logs: the run's log
+    folder (default: `logs` beside `root`). A missing `root` raises FileNotFoundError naming it."""
     rows = []
     root = Path(root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: no benchmark folder here; run the workflow first (snakemake --cores 2) "
+                                "or name the results folder of a run")
     logs = root.parent / "logs" if logs is None else Path(logs)
     point_methods = read_point_methods(root.parent)
     for p in sorted(root.rglob("*.tsv")):
@@ -108,11 +119,12 @@ def read_benchmarks(root, logs=None) -> pd.DataFrame:
         if len(df) == 0 or "s" not in df.columns:
             continue
         rel = p.relative_to(root)
-        end = p.stat().st_mtime
         s = float(df["s"].iloc[0])
         cpu = pd.to_numeric(df.get("cpu_time", pd.Series([np.nan])), errors="coerce").iloc[0]
         rss = pd.to_numeric(df.get("max_rss", pd.Series([np.nan])), errors="coerce").iloc[0]
         rec = read_usage(usage_path(logs / rel.with_suffix(".log")))  # the job's log mirrors its benchmark file
+        from_record = rec is not None and math.isfinite(rec["end_epoch_s"])
+        end = rec["end_epoch_s"] if from_record else p.stat().st_mtime
         job = rel.with_suffix("").as_posix()
         rows.append({"rule": rel.parts[0] if len(rel.parts) > 1 else rel.stem,
                      "job": job, "start": end - s, "end": end, "seconds": s,
@@ -120,9 +132,9 @@ def read_benchmarks(root, logs=None) -> pd.DataFrame:
                      "threads": 1 if rec is None else rec["threads"],
                      "startup_cpu_s": math.nan if rec is None else rec["startup_cpu_s"],
                      "jit_s": math.nan if rec is None else rec["jit_s"], "max_rss_mb": float(rss),
-                     "method": job_method(job, point_methods)})
+                     "method": job_method(job, point_methods), "end_from": "record" if from_record else "file"})
     df = pd.DataFrame(rows, columns=["rule", "job", "start", "end", "seconds", "cpu_s", "cpu_exact", "threads",
-                                     "startup_cpu_s", "jit_s", "max_rss_mb", "method"])
+                                     "startup_cpu_s", "jit_s", "max_rss_mb", "method", "end_from"])
     return df.sort_values(["start", "job"]).reset_index(drop=True)
 
 
@@ -211,7 +223,10 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
     imports; summed over the `startup_jobs` whose record has it), the seconds of Numba compilation
     (`_jit_summary`), jobs, the blocking chain's rules and
     seconds, the seconds per rule (sum, sorted) and per method group (`method_group` of the `method`
-    column where `df` has one: jobs, wall and CPU seconds, the methods in it; sorted)."""
+    column where `df` has one: jobs, wall and CPU seconds, the methods in it; sorted), how many jobs
+    were timed by their benchmark file's modification time (``ends_from_files``) and whether the jobs
+    held more core-time than `cores` had over the wall time (``overfull``: more cores than `cores`,
+    or modification times a copy reset; module doc)."""
     if df.empty:
         return {"jobs": 0}
     wall = float(df["end"].max() - df["start"].min())
@@ -229,9 +244,11 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
         agg = agg.rename_axis("group").reset_index().sort_values(["sum_s", "group"], ascending=[False, True])
         per_method = {r.group: {"jobs": int(r.jobs), "sum_s": float(r.sum_s), "cpu_s": float(r.cpu_s),
                                 "methods": list(r.methods)} for r in agg.itertuples()}
+    utilisation = core / (cores * wall) if wall > 0 else math.inf
     return {"jobs": int(len(df)), "cores": int(cores), "wall_s": wall, "job_s": float(df["seconds"].sum()),
-            "job_core_s": core, "idle_core_s": max(0.0, cores * wall - core),
-            "utilisation": core / (cores * wall) if wall > 0 else math.nan,
+            "job_core_s": core, "idle_core_s": max(0.0, cores * wall - core), "utilisation": utilisation,
+            "ends_from_files": int((df["end_from"] != "record").sum()) if "end_from" in df.columns else int(len(df)),
+            "overfull": bool(utilisation > 1.0 + OVERFULL_TOLERANCE),
             "cpu_s": cpu, "cpu_exact_jobs": int(df["cpu_exact"].sum()), "job_core_off_cpu_s": max(0.0, core - cpu),
             "startup_cpu_s": float(np.nansum(df["startup_cpu_s"])),
             "startup_jobs": int(df["startup_cpu_s"].notna().sum()),
@@ -254,6 +271,12 @@ def summary_lines(s: dict) -> list[str]:
     return [f"{s['jobs']} jobs on {s['cores']} cores: wall {s['wall_s'] / 60:.1f} min, job time {s['job_s'] / 60:.1f} "
             f"min, idle core-time {s['idle_core_s'] / 60:.1f} min (no job on the core; {100 * s['utilisation']:.0f} % "
             "of the core-time held by jobs)",
+            *([f"NOT A TIME LINE OF THIS RUN: its jobs held {s['job_core_s'] / 60:.1f} core-minutes in "
+               f"{s['wall_s'] / 60:.1f} min on {s['cores']} cores, more than the cores had. Either the run had more "
+               f"cores (pass them: --cores), or its times are lost: {s.get('ends_from_files', s['jobs'])} of "
+               f"{s['jobs']} jobs are timed by their benchmark file's modification time, which a copy that did "
+               "not keep the files' times (cp -r) resets (copy with cp -a, cp -p or rsync -t)"]
+              if s.get("overfull") else []),
             f"CPU in jobs {s['cpu_s'] / 60:.1f} min ({s['cpu_exact_jobs']} of {s['jobs']} jobs from their own exact "
             "records, the rest from Snakemake's sampled cpu_time, which misses up to 30 s a job), "
             f"{s['job_core_off_cpu_s'] / 60:.1f} min of job core-time off that CPU (waiting, interpreter exits)",
