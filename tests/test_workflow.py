@@ -264,6 +264,11 @@ def test_every_job_records_its_exact_cpu(smoke_run):
     df = df[df["rule"] != "run_timeline"]
     missing = df.loc[~df["cpu_exact"].astype(bool), "job"].tolist()
     assert not missing, missing
+    # each job's end time comes from its record, taken just before Snakemake wrote its benchmark file
+    assert (df["end_from"] == "record").all()
+    mtime = {j: (smoke_run / "results/benchmarks" / f"{j}.tsv").stat().st_mtime for j in df["job"]}
+    lag = df["job"].map(mtime) - df["end"]
+    assert ((lag > -1.0) & (lag < 60.0)).all(), df.assign(lag=lag).loc[~((lag > -1.0) & (lag < 60.0)), ["job", "lag"]]
     assert (df["cpu_s"] > 0).all() and (df["threads"] >= 1).all()
     # the CPU before a job's own work (interpreter, imports) is part of its CPU, and a job that runs
     # no method imports no method registry: its start-up stays well under a heavy job's
