@@ -92,7 +92,11 @@ def main():
     if args.repeat < 1:
         ap.error(f"--repeat must be at least 1, got {args.repeat}")
     results = Path(args.results)
-    ids = (results / "splits" / f"{args.split}.txt").read_text().split()
+    split_file = results / "splits" / f"{args.split}.txt"
+    if not split_file.is_file():
+        ap.error(f"{split_file}: no such split file; run the workflow first (snakemake --cores 2 makes the "
+                 "scenes, templates and splits) or name the results folder of a run with --results")
+    ids = split_file.read_text().split()
     if args.scenes > 0:
         ids = ids[: args.scenes]
     classes, objects, templates = read_inputs(results)

@@ -39,6 +39,7 @@ import math
 import multiprocessing as mp
 import os
 import platform
+import queue
 import tempfile
 import time
 from pathlib import Path
@@ -46,6 +47,8 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+#: The configurations --configs may name (sonardet.detect.sasa.DEFAULTS and STUDY).
+CONFIGS = ("DEFAULTS", "STUDY")
 
 
 def _synthetic_scenes(n: int, out: Path) -> list[Path]:
@@ -181,6 +184,21 @@ def _worker(name: str, overrides: dict, paths: list[str], steps: int, warmup: in
     })
 
 
+def _result(q, proc, what: str) -> dict:
+    """The row the worker process `proc` puts on `q`; SystemExit naming `what` if the worker ends
+    without one (its traceback is on stderr above), instead of waiting for it forever."""
+    while True:
+        try:
+            return q.get(timeout=1.0)
+        except queue.Empty:
+            if not proc.is_alive():
+                try:  # a row put just before the worker ended
+                    return q.get(timeout=1.0)
+                except queue.Empty:
+                    raise SystemExit(f"benchmarks/sasa.py: the worker for {what} ended (exit code {proc.exitcode}) "
+                                     "without a result; its error is above") from None
+
+
 def _devices(device: str | None) -> list[str]:
     """The devices to time: the one asked for, else CPU and (when available) CUDA."""
     if device is not None:
@@ -215,6 +233,9 @@ def main(argv=None) -> list[dict]:
                     help="with --profile: one row per operator and input shapes (e.g. each matrix product's sizes)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
+    unknown = [n for n in args.configs.split(",") if n not in CONFIGS]
+    if unknown:
+        ap.error(f"--configs: unknown configuration(s) {unknown}; known: {','.join(CONFIGS)}")
     rows = []
     overrides = {"progress": False, "compact_groups": not args.padded,
                  "retain_freed_memory": not args.system_malloc}
@@ -229,7 +250,7 @@ def main(argv=None) -> list[dict]:
                                                          args.profile, args.parallel_min_elements, q,
                                                          args.profile_shapes))
                 proc.start()
-                row = q.get()
+                row = _result(q, proc, f"{name} on {device}")
                 proc.join()
                 row["load_avg_1min"] = os.getloadavg()[0]
                 rows.append(row)

@@ -27,3 +27,10 @@ def test_repeat_must_be_positive(monkeypatch, tmp_path):
     monkeypatch.setattr(sys, "argv", ["detect.py", "--results", str(tmp_path), "--repeat", "0"])
     with pytest.raises(SystemExit):
         bench_detect.main()
+
+
+def test_a_results_folder_without_the_split_is_named(monkeypatch, tmp_path, capsys):
+    monkeypatch.setattr(sys, "argv", ["detect.py", "--results", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        bench_detect.main()
+    assert "splits/dev.txt: no such split file" in capsys.readouterr().err

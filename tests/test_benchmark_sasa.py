@@ -36,3 +36,29 @@ def test_the_profile_by_input_shape_names_each_product_size(capsys):
     # the coordinate projection's weight gradient: a (3, R) x (R, C) product, not (C, R) x (R, 3)
     mm = [line for line in printed.splitlines() if line.lstrip().startswith("aten::mm") and "[[" in line]
     assert mm and any("[[3, " in line for line in mm)
+
+
+def test_an_unknown_configuration_is_refused_before_any_work(capsys):
+    import pytest
+
+    with pytest.raises(SystemExit):
+        sasa_benchmark.main(["--configs", "DEFAULTS,FAST", "--synthetic"])
+    assert "unknown configuration(s) ['FAST']" in capsys.readouterr().err
+
+
+def test_a_worker_that_fails_ends_the_run_instead_of_hanging():
+    """A worker that raises (here: an unknown device) puts no row on the queue; the benchmark ends
+    naming it, where it used to wait for the row forever."""
+    import subprocess
+
+    import torch
+
+    if torch.cuda.is_available():
+        device = "nodevice"
+    else:
+        device = "cuda"  # this PyTorch has no CUDA: the worker's device check raises
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "sasa.py"), "--configs", "DEFAULTS", "--device",
+                           device, "--synthetic", "--n-scenes", "1", "--steps", "1", "--warmup", "0", "--threads",
+                           "1"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode != 0
+    assert f"the worker for DEFAULTS on {device} ended (exit code 1) without a result" in proc.stderr
