@@ -102,7 +102,11 @@ def main(argv=None) -> int:
     ap.add_argument("results_b")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
-    report = compare_runs(args.results_a, args.results_b)
+    try:
+        report = compare_runs(args.results_a, args.results_b)
+    except FileNotFoundError as exc:
+        print(f"compare_runs.py: {exc}", file=sys.stderr)
+        return 2
     for name, g in report.items():
         extra = f", {g['tensors']} tensors" if "tensors" in g else ""
         print(f"{name:24s} {g['files_a']:5d} files in A, {g['files_b']:5d} in B{extra}: {len(g['differ'])} differ, "

@@ -42,8 +42,13 @@ from sonardet.objects import read_object
 
 
 def read_inputs(results: Path):
-    """Templates and objects of every class found under results/objects and results/templates."""
+    """Templates and objects of every class found under results/objects and results/templates;
+    SystemExit naming the folder where it holds no object."""
     classes = sorted(p.stem for p in (results / "objects").glob("*.json"))
+    if not classes:
+        raise SystemExit(f"{results / 'objects'}: no object models here; build them and their templates first "
+                         "(snakemake --cores 2 results/templates/tetrapod_s.npz and the other classes) or name the "
+                         "results folder of a run with --results")
     objects = {c: read_object(results / "objects" / f"{c}.json") for c in classes}
     templates = {c: read_templates(results / "templates" / f"{c}.npz") for c in classes}
     return classes, objects, templates

@@ -59,6 +59,7 @@ def test_bad_input_is_named(tmp_path):
     a = _run(tmp_path / "a")
     with pytest.raises(FileNotFoundError, match="no such results folder"):
         compare_runs(a, tmp_path / "missing")
+    assert main([str(tmp_path / "missing"), str(a)]) == 2  # the command names it, exit code 2, no traceback
     b = _run(tmp_path / "b")
     torch.save({"weights": {}}, b / "models" / "sasa_25" / "model.pt")
     with pytest.raises(ValueError, match="model.pt: not a SASA model file"):

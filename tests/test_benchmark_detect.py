@@ -34,3 +34,8 @@ def test_a_results_folder_without_the_split_is_named(monkeypatch, tmp_path, caps
     with pytest.raises(SystemExit):
         bench_detect.main()
     assert "splits/dev.txt: no such split file" in capsys.readouterr().err
+
+
+def test_a_results_folder_without_object_models_is_named(tmp_path):
+    with pytest.raises(SystemExit, match="objects: no object models here"):
+        bench_detect.read_inputs(tmp_path)

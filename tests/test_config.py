@@ -63,6 +63,11 @@ def test_bad_config_names_the_key(bad, key):
     assert key in str(exc.value)
 
 
+def test_a_missing_config_file_is_named(tmp_path):
+    with pytest.raises(ConfigError, match="nothere.yaml: no such config file"):
+        read_config(tmp_path / "nothere.yaml")
+
+
 def test_load_config_rejects_non_mapping(tmp_path):
     p = tmp_path / "c.yaml"
     p.write_text("- just\n- a list\n")

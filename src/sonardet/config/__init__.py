@@ -148,8 +148,12 @@ def _realism_test_problems(cfg: dict) -> list[str]:
 
 
 def read_config(path) -> dict:
-    """Read a YAML config file, validate it and fill defaults."""
+    """Read a YAML config file, validate it and fill defaults. A missing file, invalid YAML or a bad
+    value raises ConfigError naming the file (and the key)."""
     path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such config file (the default experiment is config/config.yaml in the "
+                          "workflow folder)")
     try:
         data = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as exc:
