@@ -84,7 +84,7 @@ def read_usage(path) -> dict | None:
     try:
         rec = json.loads(path.read_text())
         return {"cpu_s": float(rec["cpu_s"]), "threads": max(1, int(rec.get("threads", 1))),
-                "startup_cpu_s": float(rec.get("startup_cpu_s", "nan")), "jit_s": float(rec.get("jit_s", "nan")),
+                "startup_cpu_s": float(rec.get("startup_cpu_s", math.nan)), "jit_s": float(rec.get("jit_s", math.nan)),
                 "end_epoch_s": float(rec.get("end_epoch_s", math.nan))}
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{path}: not a job's usage record ({exc}); delete it and rerun its job") from None

@@ -244,11 +244,11 @@ def run_summary(df: pd.DataFrame, cores: int) -> dict:
         agg = agg.rename_axis("group").reset_index().sort_values(["sum_s", "group"], ascending=[False, True])
         per_method = {r.group: {"jobs": int(r.jobs), "sum_s": float(r.sum_s), "cpu_s": float(r.cpu_s),
                                 "methods": list(r.methods)} for r in agg.itertuples()}
-    utilisation = core / (cores * wall) if wall > 0 else math.inf
     return {"jobs": int(len(df)), "cores": int(cores), "wall_s": wall, "job_s": float(df["seconds"].sum()),
-            "job_core_s": core, "idle_core_s": max(0.0, cores * wall - core), "utilisation": utilisation,
-            "ends_from_files": int((df["end_from"] != "record").sum()) if "end_from" in df.columns else int(len(df)),
-            "overfull": bool(utilisation > 1.0 + OVERFULL_TOLERANCE),
+            "job_core_s": core, "idle_core_s": max(0.0, cores * wall - core),
+            "utilisation": core / (cores * wall) if wall > 0 else math.nan,
+            "ends_from_files": int((df["end_from"] != "record").sum()),
+            "overfull": bool(core > cores * wall * (1.0 + OVERFULL_TOLERANCE)),
             "cpu_s": cpu, "cpu_exact_jobs": int(df["cpu_exact"].sum()), "job_core_off_cpu_s": max(0.0, core - cpu),
             "startup_cpu_s": float(np.nansum(df["startup_cpu_s"])),
             "startup_jobs": int(df["startup_cpu_s"].notna().sum()),
@@ -273,7 +273,7 @@ def summary_lines(s: dict) -> list[str]:
             "of the core-time held by jobs)",
             *([f"NOT A TIME LINE OF THIS RUN: its jobs held {s['job_core_s'] / 60:.1f} core-minutes in "
                f"{s['wall_s'] / 60:.1f} min on {s['cores']} cores, more than the cores had. Either the run had more "
-               f"cores (pass them: --cores), or its times are lost: {s.get('ends_from_files', s['jobs'])} of "
+               f"cores (pass them: --cores), or its times are lost: {s['ends_from_files']} of "
                f"{s['jobs']} jobs are timed by their benchmark file's modification time, which a copy that did "
                "not keep the files' times (cp -r) resets (copy with cp -a, cp -p or rsync -t)"]
               if s.get("overfull") else []),
