@@ -27,6 +27,14 @@ rule all:
         "results/report/timeline.json",
 
 
+# Every method on the development sets (dev, realism_dev, mismatch_dev), evaluated and compared: what
+# a choice of a threshold or setting reads. Not in the default target unless
+# workflow.development_sets is true (the report reads none of it): `snakemake --cores 2 development`.
+rule development:
+    input:
+        eval_files(DEV_DATASETS),
+
+
 onstart:
     lift_local_job_rate_limit()
 

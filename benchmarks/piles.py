@@ -83,7 +83,9 @@ def main() -> None:
     for method in a.methods.split(","):
         files = sorted((res / "detections" / method / a.dataset).glob("*.json"))
         if not files:
-            raise SystemExit(f"{res / 'detections' / method / a.dataset}: no detections")
+            hint = (" (the development sets' detections and scenes come from `snakemake --cores 2 development`)"
+                    if a.dataset != "dev" else "")
+            raise SystemExit(f"{res / 'detections' / method / a.dataset}: no detections{hint}")
         gt, dets = {}, {}
         for f in files:
             scene = json.loads((res / SCENE_DIRS.get(a.dataset, "scenes") / f.name).read_text())

@@ -49,6 +49,10 @@ def main():
     mm = dev[: int(cfg["mismatch_test"]["n_dev"])]
     sets = {"mismatch_dev": ([str(r / "mismatch" / "scenes" / f"{s}.npz") for s in mm],
                              [str(r / "mismatch" / "scenes" / f"{s}.json") for s in mm])}
+    missing = [p for p in sets["mismatch_dev"][0] if not os.path.exists(p)]
+    if missing:
+        raise SystemExit(f"{missing[0]}: no such mismatch_dev scene ({len(missing)} of {len(mm)} missing); make the "
+                         "development sets first: `snakemake --cores 2 development`")
     objects = [str(r / "objects" / f"{c}.json") for c in classes]
     rows = []
     for name, prob in (("dr", 0.0), ("dr_shape", args.prob)):

@@ -232,6 +232,14 @@ EVAL_DATASETS = [d for d in DATASETS if d not in REALISM_EFFECTS.values()]
 TEST_DATASETS = [
     d for d in ("synthetic", "realism", "hybrid", "mismatch") if d in DATASETS
 ]
+#: The development sets evaluated on their own (every method, with a comparison). They serve choices,
+#: not the report, so the default target makes them only with `workflow.development_sets`; the target
+#: `development` makes them on demand. Their detections that the report does read (the ablation
+#: reference on dev, the realism ablation on dev and realism_dev) are made either way.
+DEV_DATASETS = [d for d in EVAL_DATASETS if d not in TEST_DATASETS]
+DEFAULT_EVAL_DATASETS = TEST_DATASETS + (
+    DEV_DATASETS if config["workflow"]["development_sets"] else []
+)
 #: Ablation grid points by name, the method each runs, and the test scenes they run on.
 ABLATION = (
     {p["name"]: p for p in config["ablation"]["points"]}
@@ -355,15 +363,16 @@ def per_scene_alone_re(dataset):
     )
 
 
-def eval_files(methods=None):
-    """metrics.json of every method (default: all configured) on every evaluation dataset it runs on,
-    and the comparison (bootstrap intervals, scorings) of each evaluation dataset."""
+def eval_files(datasets, methods=None):
+    """metrics.json of every method (default: all configured) on each of the evaluation datasets it
+    runs on, and the comparison (bootstrap intervals, scorings) of each of those datasets.
+    """
     return [
         metrics_file(m, d)
         for m in (methods or METHOD)
-        for d in EVAL_DATASETS
+        for d in datasets
         if METHOD[m].runs_on(d)
-    ] + [f"results/eval/compare/{d}.json" for d in EVAL_DATASETS]
+    ] + [f"results/eval/compare/{d}.json" for d in datasets]
 
 
 def dataset_detect_inputs(dataset):
@@ -478,7 +487,7 @@ def final_outputs():
         + template_files()
         + scene_files("npz")
         + ["results/tables/dataset_stats.csv"]
-        + eval_files()
+        + eval_files(DEFAULT_EVAL_DATASETS)
         + ablation_files()
         + (["results/noise/noise.json"] if NOISE else [])
         + (["results/realism_ablation/summary.json"] if REALISM_EFFECTS else [])
@@ -565,10 +574,10 @@ def report_manifest():
         "seeds": SEEDS,
         "datasets": TEST_DATASETS,
         "metrics": {
-            m: {d: metrics_file(m, d) for d in EVAL_DATASETS if METHOD[m].runs_on(d)}
+            m: {d: metrics_file(m, d) for d in TEST_DATASETS if METHOD[m].runs_on(d)}
             for m in METHOD
         },
-        "compare": {d: f"results/eval/compare/{d}.json" for d in EVAL_DATASETS},
+        "compare": {d: f"results/eval/compare/{d}.json" for d in TEST_DATASETS},
         "ladder": [
             {
                 "name": m,

@@ -46,9 +46,11 @@ rule report:
 # idle core-time, the chain of jobs that set the end time, a Gantt figure. It runs last.
 rule run_timeline:
     input:
-        # The report and the surveys come after every other job (it reads only benchmark files).
+        # The report, the surveys and the development sets of the default target come after every
+        # other job (it reads only benchmark files).
         report_files(),
         SURVEY_OUTPUTS,
+        eval_files([d for d in DEFAULT_EVAL_DATASETS if d in DEV_DATASETS]),
     output:
         summary="results/report/timeline.json",
         table="results/report/tables/timeline.csv",

@@ -366,6 +366,53 @@ def _job_counts(text: str) -> dict:
     return out
 
 
+def _dry_run_outputs(work, configfile: str, *targets: str) -> set[str]:
+    """Every output path of a forced dry run of `targets` (the default target when none) in `work`."""
+    # the targets first: --configfile takes every word after it
+    proc = subprocess.run([sys.executable, "-m", "snakemake", *targets, "-n", "--forceall", "--configfile",
+                           configfile], cwd=work, capture_output=True, text=True)
+    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
+    out, inside = set(), False
+    for line in (proc.stdout + proc.stderr).splitlines():
+        key = line.strip().split(":", 1)
+        if len(key) == 2 and key[0] in ("input", "output", "log", "jobid", "wildcards", "resources", "benchmark",
+                                        "priority", "reason", "threads"):
+            inside = key[0] == "output"
+            line = key[1]
+        elif not line.startswith(" "):
+            inside = False
+        if inside:
+            out |= {p.strip() for p in line.split(",") if p.strip().startswith("results/")}
+    return out
+
+
+def test_default_target_leaves_out_the_development_sets(smoke_run):
+    """With workflow.development_sets false (the default config's setting) the default target
+    evaluates every method on the test sets only: no evaluation or comparison on dev, realism_dev or
+    mismatch_dev and no mismatch_dev scenes, which the report does not read; the detections on dev and
+    realism_dev that the ablation reference and the realism ablation read are still made. The target
+    `development` makes the rest."""
+    cfg = (smoke_run / "config_smoke.yaml").read_text().replace("development_sets: true", "development_sets: false")
+    assert "development_sets: false" in cfg
+    (smoke_run / "config_nodev.yaml").write_text(cfg)
+    dev = _dev_scenes(smoke_run)[0]
+    default = _dry_run_outputs(smoke_run, "config_nodev.yaml")
+    assert "results/report/timeline.json" in default and "results/eval/model_based_ours/synthetic/metrics.json" in default
+    for d in DEV_SETS:
+        assert f"results/eval/compare/{d}.json" not in default
+        assert not {p for p in default if p.startswith("results/eval/") and f"/{d}/" in p}, d
+    assert f"results/mismatch/scenes/{dev}.npz" not in default
+    assert f"results/detections/model_based_paper/dev/{dev}.json" in default  # the ablation reference
+    assert f"results/detections/model_based_ours/realism_dev/{dev}.json" in default  # the realism ablation
+    assert f"results/detections/model_based_paper/realism_dev/{dev}.json" not in default
+    development = _dry_run_outputs(smoke_run, "config_nodev.yaml", "development")
+    for d in DEV_SETS:
+        assert f"results/eval/compare/{d}.json" in development
+        assert f"results/eval/sasa_dr_100/{d}/metrics.json" in development
+    assert f"results/mismatch/scenes/{dev}.npz" in development
+    assert "results/report/timeline.json" not in development
+
+
 def test_rerun_is_a_no_op_and_deterministic(smoke_run):
     before = (smoke_run / "results/templates/tetrapod_s.npz").read_bytes()
     proc = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--configfile", "config_smoke.yaml"],
