@@ -46,11 +46,11 @@ rule report:
 # idle core-time, the chain of jobs that set the end time, a Gantt figure. It runs last.
 rule run_timeline:
     input:
-        # The report, the surveys and the development sets of the default target come after every
-        # other job (it reads only benchmark files).
+        # The report, the surveys and the evaluations of the default target (development sets too
+        # with workflow.development_sets) come after every other job (it reads only benchmark files).
         report_files(),
         SURVEY_OUTPUTS,
-        eval_files([d for d in DEFAULT_EVAL_DATASETS if d in DEV_DATASETS]),
+        eval_files(DEFAULT_EVAL_DATASETS),
     output:
         summary="results/report/timeline.json",
         table="results/report/tables/timeline.csv",
