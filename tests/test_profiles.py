@@ -15,7 +15,7 @@ from conftest import REPO, copy_workflow
 
 PROFILES = ("slurm", "slurm-gpu")
 #: The study preset's training: seconds per epoch over 80 scenes on 2 CPU threads (benchmarks/sasa.py,
-#: README "Speed"); a GPU is faster, so a runtime covering this covers a GPU.
+#: README "Speed", docs/speed_log.md); a GPU is faster, so a runtime covering this covers a GPU.
 STUDY_EPOCH_S_CPU = 165
 
 
