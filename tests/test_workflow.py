@@ -366,24 +366,16 @@ def _job_counts(text: str) -> dict:
     return out
 
 
-def _dry_run_outputs(work, configfile: str, *targets: str) -> set[str]:
-    """Every output path of a forced dry run of `targets` (the default target when none) in `work`."""
+def _dag_outputs(work, configfile: str, *targets: str) -> set[str]:
+    """Every output file of the DAG of `targets` (the default target when none) in `work`, from
+    Snakemake's `--summary` table (its first column)."""
     # the targets first: --configfile takes every word after it
-    proc = subprocess.run([sys.executable, "-m", "snakemake", *targets, "-n", "--forceall", "--configfile",
-                           configfile], cwd=work, capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "snakemake", *targets, "--summary", "--configfile", configfile],
+                          cwd=work, capture_output=True, text=True)
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
-    out, inside = set(), False
-    for line in (proc.stdout + proc.stderr).splitlines():
-        key = line.strip().split(":", 1)
-        if len(key) == 2 and key[0] in ("input", "output", "log", "jobid", "wildcards", "resources", "benchmark",
-                                        "priority", "reason", "threads"):
-            inside = key[0] == "output"
-            line = key[1]
-        elif not line.startswith(" "):
-            inside = False
-        if inside:
-            out |= {p.strip() for p in line.split(",") if p.strip().startswith("results/")}
-    return out
+    rows = [line.split("\t") for line in proc.stdout.splitlines()]
+    assert rows and rows[0][0] == "output_file", proc.stdout[:500]
+    return {r[0] for r in rows[1:] if r[0]}
 
 
 def test_default_target_leaves_out_the_development_sets(smoke_run):
@@ -396,7 +388,7 @@ def test_default_target_leaves_out_the_development_sets(smoke_run):
     assert "development_sets: false" in cfg
     (smoke_run / "config_nodev.yaml").write_text(cfg)
     dev = _dev_scenes(smoke_run)[0]
-    default = _dry_run_outputs(smoke_run, "config_nodev.yaml")
+    default = _dag_outputs(smoke_run, "config_nodev.yaml")
     assert "results/report/timeline.json" in default and "results/eval/model_based_ours/synthetic/metrics.json" in default
     for d in DEV_SETS:
         assert f"results/eval/compare/{d}.json" not in default
@@ -405,7 +397,7 @@ def test_default_target_leaves_out_the_development_sets(smoke_run):
     assert f"results/detections/model_based_paper/dev/{dev}.json" in default  # the ablation reference
     assert f"results/detections/model_based_ours/realism_dev/{dev}.json" in default  # the realism ablation
     assert f"results/detections/model_based_paper/realism_dev/{dev}.json" not in default
-    development = _dry_run_outputs(smoke_run, "config_nodev.yaml", "development")
+    development = _dag_outputs(smoke_run, "config_nodev.yaml", "development")
     for d in DEV_SETS:
         assert f"results/eval/compare/{d}.json" in development
         assert f"results/eval/sasa_dr_100/{d}/metrics.json" in development
