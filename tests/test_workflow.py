@@ -403,6 +403,8 @@ def test_default_target_leaves_out_the_development_sets(smoke_run):
         assert f"results/eval/sasa_dr_100/{d}/metrics.json" in development
     assert f"results/mismatch/scenes/{dev}.npz" in development
     assert "results/report/timeline.json" not in development
+    # with the key on (the smoke config) the default target holds them all
+    assert development <= _dag_outputs(smoke_run, "config_smoke.yaml")
 
 
 def test_rerun_is_a_no_op_and_deterministic(smoke_run):
