@@ -123,6 +123,22 @@ def test_flat_bare_seabed_window_gives_no_detection(objects, templates, sensor):
     assert dets == []
 
 
+def test_paper_reuses_the_fit_of_a_window_with_the_same_points(objects, templates, sensor):
+    """Overlapping windows around a lone object often hold exactly its points: the later ones get the
+    first one's fit, and the detections (and every fit) equal those of registering every window."""
+    cone = objects["reef_cone"]
+    t, q = place(cone, 7.0, 7.0, 0.3)
+    xyz = survey([(cone, t, q)], sensor)
+    params = {"window_overlap": 0.75}
+    dets, stats = detect(xyz, templates, objects, params, variant="paper")
+    every, stats_every = detect(xyz, templates, objects, {**params, "reuse_identical_windows": False},
+                                variant="paper")
+    assert stats["windows_reused"] > 0 and stats_every["windows_reused"] == 0
+    # Each reused window saves one ICP run per template of its class (one nadir view here).
+    assert stats["icp_runs"] + stats["windows_reused"] == stats_every["icp_runs"]
+    assert dets and repr(dets) == repr(every)
+
+
 def test_two_touching_objects_give_two_detections(objects, templates, sensor):
     cone = objects["reef_cone"]
     t1, q1 = place(cone, 6.0, 6.0, 0.0)

@@ -36,7 +36,7 @@ def new_stats(variant: str) -> dict:
     """An empty statistics dict (what a detector call returns next to the detections; seconds in s)."""
     return {
         "variant": variant, "n_points": 0, "n_candidate_points": 0, "windows": 0, "windows_skipped": 0,
-        "icp_runs": 0, "icp_runs_by_kind": {}, "icp_declined": 0, "hypotheses": 0, "refits": 0,
+        "windows_reused": 0, "icp_runs": 0, "icp_runs_by_kind": {}, "icp_declined": 0, "hypotheses": 0, "refits": 0,
         "accepted_per_round": [], "capped": {},
         "n_detections": 0, "origin": [0.0, 0.0, 0.0], "seconds": {k: 0.0 for k in _STAGES + ("total",)},
     }
@@ -198,7 +198,8 @@ def detect(xyz: np.ndarray, templates: dict, objects: dict, params: dict | None 
     ours outputs accepted objects (score >= accept_min) and, down-weighted below them, the other
     hypotheses that duplicate none (extras.accepted False). stats: n_points, n_candidate_points (above
     the seabed), windows (paper: sliding windows; ours: proposals tried, class by class), windows_skipped
-    (too few points / too low), icp_runs (ICP calls; icp_runs_by_kind splits them), icp_declined
+    (too few points / too low), windows_reused (paper: windows holding exactly an earlier window's
+    points, given its fit without registering again), icp_runs (ICP calls; icp_runs_by_kind splits them), icp_declined
     (degenerate input), hypotheses, refits, accepted_per_round, replaced, proposals_repeated,
     proposals_outcompeted (ours), capped (what the time bounds left out: ours {proposals, tumbled_rounds},
     `proposal_max_per_round_n`; paper {windows}, `window_max_n`), n_detections, origin (the local origin

@@ -11,7 +11,10 @@
    scan too), moved onto the window's points by centroid alignment + point-to-point ICP
    (`icp_max_corr_m`), then, when `icp_refine_iter` > 0, the same ICP continued with the tighter
    correspondence distance `icp_refine_corr_m` (so points of neighbouring objects in the window stop
-   pulling the template off the object it has locked on); RMSE and fitness are those at `icp_max_corr_m`;
+   pulling the template off the object it has locked on); RMSE and fitness are those at `icp_max_corr_m`.
+   A window holding exactly the points of an earlier window of its class gets that window's fit
+   (the same input gives the same result; counted as `windows_reused`, not as ICP runs;
+   `reuse_identical_windows`);
 4. acceptance: inlier RMSE <= `rmse_max_m[cls]` and fitness >= `fitness_min`; score =
    1 - rmse / rmse_max ('rmse': the study ranks by RMSE), fitness * (1 - rmse / rmse_max)
    ('fitness_rmse') or the share of template points within `score_corr_m` of a window point
@@ -57,7 +60,8 @@ SCORES = ("rmse", "fitness_rmse", "tight_fitness")
 RANKING_KEYS = ("rmse_max_m", "fitness_min", "score", "score_corr_m", "duplicate_dist_m",
                 "duplicate_other_class_frac")
 #: Counts of a run that the rankings of one shared run have in common (steps 1 to 3).
-_SHARED_COUNTS = ("n_candidate_points", "windows", "windows_skipped", "icp_runs", "icp_declined", "capped")
+_SHARED_COUNTS = ("n_candidate_points", "windows", "windows_skipped", "windows_reused", "icp_runs", "icp_declined",
+                  "capped")
 _SHARED_STAGES = ("ground", "proposals", "registration")
 
 log = logging.getLogger(__name__)
@@ -204,13 +208,23 @@ def _class_hypotheses(cls: str, m, pts: np.ndarray, tree: cKDTree, lo, hi, p: di
     rmse_max = [per_class(r["rmse_max_m"], cls) for r in rankings]
     stats[0]["seconds"]["proposals"] += time.perf_counter() - t
     out = [[] for _ in rankings]
+    # Windows holding exactly the points of an earlier window (sparse areas, overlapping windows) get
+    # its fit: the same input gives the same ICP result, so only the cost changes (`windows_reused`).
+    fits: dict[bytes, tuple | None] = {}
     for w in wins:
         t = time.perf_counter()
         centre = 0.5 * (w[:2] + w[2:])
         idx = np.asarray(tree.query_ball_point(centre, 0.5 * side, p=np.inf), dtype=np.int64)
         idx.sort()
         window = pts[idx]
-        best = _best_fit(templates, window, p, stats[0])
+        key = idx.tobytes() if p["reuse_identical_windows"] else None
+        if key is not None and key in fits:
+            best = fits[key]
+            stats[0]["windows_reused"] += 1
+        else:
+            best = _best_fit(templates, window, p, stats[0])
+            if key is not None:
+                fits[key] = best
         stats[0]["seconds"]["registration"] += time.perf_counter() - t
         if best is None:
             continue

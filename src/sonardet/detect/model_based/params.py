@@ -155,6 +155,7 @@ PAPER: dict = {
     "window_min_points_frac": 0.25,
     "window_min_thickness_m": 0.03,
     "skip_empty_windows": True,
+    "reuse_identical_windows": True,
     "window_max_n": 5000,
     "icp_max_corr_m": 0.3,
     "icp_max_iter": 30,
@@ -367,6 +368,10 @@ DESCRIPTIONS: dict = {
                                'registered'),
     "skip_empty_windows": ("-",
                            'skip windows below the point threshold (False: register every window, for benchmarks)'),
+    "reuse_identical_windows": ("-",
+                                "a window holding exactly the candidate points of an earlier window of its class "
+                                "gets that window's fit instead of a second registration: the same detections at "
+                                "less cost (False: register every window, for benchmarks)"),
     "window_max_n": ("-", "time bound on dense or pathological clouds: at most this many windows per class are "
                           "registered (those holding the most candidate points); the rest are dropped, counted in "
                           "the statistics (capped) and logged. The default is above anything the default scenes "
