@@ -1,39 +1,35 @@
-# Synthetic scenes, the train/validation/test split and the dataset table.
-
-
-# One rule per priority class of scenes (common.smk: SCENE_PRIORITY): the smallest training fraction
-# and the dev scenes first, so the longest chain of the DAG (scenes -> training -> inference ->
-# evaluation -> report) starts as early as it can; the outputs are the same for every class.
-for _klass, (_priority, _ids) in SCENE_PRIORITY.items():
+# Scene simulation jobs of a few scenes each (common.smk: SCENE_JOBS): the training and dev scenes
+# first, so the longest chain of the DAG (scenes -> training -> inference -> evaluation -> report)
+# starts as early as it can; each scene's outputs are the same in any job.
+for _job, (_priority, _ids) in SCENE_JOBS.items():
 
     rule:
         name:
-            f"simulate_scene_{_klass}"
+            f"simulate_scene_{_job}"
         input:
             meshes=object_files("ply"),
             meta=object_files("json"),
         output:
-            npz="results/scenes/{scene}.npz",
-            json="results/scenes/{scene}.json",
-            settled="results/settled/{scene}.json",
+            npz=expand("results/scenes/{scene}.npz", scene=_ids),
+            json=expand("results/scenes/{scene}.json", scene=_ids),
+            settled=expand("results/settled/{scene}.json", scene=_ids),
         log:
-            "results/logs/simulate_scene/{scene}.log",
+            f"results/logs/simulate_scene/{_job}.log",
         benchmark:
-            "results/benchmarks/simulate_scene/{scene}.tsv"
-        wildcard_constraints:
-            scene=_alternation(_ids),
+            f"results/benchmarks/simulate_scene/{_job}.tsv"
         priority: _priority
         conda:
             "../environment.yml"
         threads: 1
         resources:
             mem_mb=MEM_MB["simulate"],
-            runtime=RUNTIME_MIN["simulate"],
+            runtime=RUNTIME_MIN["simulate"] * len(_ids),
         params:
             config={
                 k: config[k]
                 for k in ("seed", "classes", "objects", "sensor", "scenes")
             },
+            scenes=_ids,
         script:
             "../workflow_scripts/simulate_scene.py"
 

@@ -272,6 +272,12 @@ def test_timing_table_stages_and_memory(run):
     assert sim.loc["scene (benchmark)", "max"] == pytest.approx(6.0)
     assert sim.loc["scene (benchmark)", "peak memory (MB)"] == pytest.approx(400.0)
     assert sim.loc["physics", "mean"] == pytest.approx(2.0)
+    # Jobs of several scenes: a job's seconds are shared by its scenes (4 s for 1 scene, 6 s for 3).
+    a, b = run["sim_bench"]
+    chunked = timing_table(simulation_benchmarks={a: 1, b: 3}).set_index("stage")
+    assert chunked.loc["scene (benchmark)", "n"] == 4
+    assert chunked.loc["scene (benchmark)", "mean"] == pytest.approx(10.0 / 4)
+    assert chunked.loc["scene (benchmark)", "max"] == pytest.approx(4.0)
     # Already-loaded dicts work as well as paths.
     d = timing_table(per_scene_stats={"m": [json.loads(p.read_text()) for p in run["stats"]]})
     assert d.set_index("stage").loc["total", "mean"] == pytest.approx(3.4)

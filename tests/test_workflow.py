@@ -7,8 +7,9 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 
-from conftest import REAL_FILE, REPO
+from conftest import REAL_FILE, REPO, copy_workflow
 from sonardet.io.templates import read_templates
 from sonardet.objects import read_object
 
@@ -405,6 +406,36 @@ def test_default_target_leaves_out_the_development_sets(smoke_run):
     assert "results/report/timeline.json" not in development
     # with the key on (the smoke config) the default target holds them all
     assert development <= _dag_outputs(smoke_run, "config_smoke.yaml")
+
+
+def test_scenes_are_the_same_in_jobs_of_any_size(smoke_run, tmp_path):
+    """The smoke run made its training and dev scenes in one job and the test scene in another
+    (`workflow.scenes_per_job` 5); made one job per scene in a copy of the workflow, a scene of each
+    is the same: soundings byte for byte, annotations and settled layout equal but for the seconds."""
+    jobs = sorted(p.stem for p in (smoke_run / "results/logs/simulate_scene").glob("*.log"))
+    assert jobs == ["other00", "train00"]
+    (tmp_path / "one_per_job").mkdir()
+    work = copy_workflow(tmp_path / "one_per_job")
+    cfg = yaml.safe_load((smoke_run / "config_smoke.yaml").read_text())
+    cfg.setdefault("workflow", {})["scenes_per_job"] = 1
+    (work / "config_one.yaml").write_text(yaml.safe_dump(cfg))
+    scenes = [_test_scenes(smoke_run)[0], _dev_scenes(smoke_run)[0]]
+    targets = [f"results/scenes/{s}.npz" for s in scenes]
+    proc = subprocess.run([sys.executable, "-m", "snakemake", *targets, "--cores", "2", "--configfile",
+                           "config_one.yaml"], cwd=work, capture_output=True, text=True)
+    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
+    made = sorted(p.stem for p in (work / "results/logs/simulate_scene").glob("*.log"))
+    assert len(made) == 2 and made[0].startswith("other") and made[1].startswith("train"), made
+
+    def without_seconds(path):
+        d = json.loads(path.read_text())
+        d.pop("timings_s", None)
+        return d
+
+    for s in scenes:
+        assert (work / f"results/scenes/{s}.npz").read_bytes() == (smoke_run / f"results/scenes/{s}.npz").read_bytes()
+        assert without_seconds(work / f"results/scenes/{s}.json") == without_seconds(smoke_run / f"results/scenes/{s}.json")
+        assert (work / f"results/settled/{s}.json").read_text() == (smoke_run / f"results/settled/{s}.json").read_text()
 
 
 def test_rerun_is_a_no_op_and_deterministic(smoke_run):

@@ -8,7 +8,8 @@ parses a path for a method or dataset name. Manifest keys:
 * metrics {method: {dataset: metrics.json}}; pr {method: pr_curves.npz} (synthetic);
 * detections {dataset: {method: {scene: detections json}}} for the figures' datasets;
 * timing {method: [stats or timing files]} (synthetic); train {method: {summary, loss}};
-* dataset_table (dataset_stats.csv); scenes {scene: json}; scene_dir; scene_benchmarks [tsv];
+* dataset_table (dataset_stats.csv); scenes {scene: json}; scene_dir; scene_benchmarks {tsv: scenes in
+  that job} (or [tsv], one scene each);
   test_scenes, train_scenes; objects {cls: json};
 * ablation {points: [json], reference: json} or None; noise json or None; realism_ablation json or
   None; hybrid {scene: [npz, json]} or None;
