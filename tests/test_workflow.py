@@ -433,9 +433,10 @@ def test_scenes_are_the_same_in_jobs_of_any_size(smoke_run, tmp_path):
         return d
 
     for s in scenes:
-        assert (work / f"results/scenes/{s}.npz").read_bytes() == (smoke_run / f"results/scenes/{s}.npz").read_bytes()
-        assert without_seconds(work / f"results/scenes/{s}.json") == without_seconds(smoke_run / f"results/scenes/{s}.json")
-        assert (work / f"results/settled/{s}.json").read_text() == (smoke_run / f"results/settled/{s}.json").read_text()
+        one, five = work / "results", smoke_run / "results"
+        assert (one / f"scenes/{s}.npz").read_bytes() == (five / f"scenes/{s}.npz").read_bytes()
+        assert without_seconds(one / f"scenes/{s}.json") == without_seconds(five / f"scenes/{s}.json")
+        assert (one / f"settled/{s}.json").read_text() == (five / f"settled/{s}.json").read_text()
 
 
 def test_rerun_is_a_no_op_and_deterministic(smoke_run):
