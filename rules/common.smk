@@ -121,8 +121,9 @@ def _scene_jobs():
     SCENE_PRIORITY_REST. Several scenes per job share one Python start-up and one reading of the
     object models (about 1 s of a 4-5 s scene); a scene's outputs do not depend on its job-mates.
     """
-    first = sorted(set(SPLIT["train"]) | set(SPLIT["dev"]))
-    rest = [s for s in SCENES if s not in set(first)]
+    first = set(SPLIT["train"]) | set(SPLIT["dev"])
+    rest = [s for s in SCENES if s not in first]
+    first = sorted(first)
     top = max(config["workflow"]["priorities"].values()) + 100
     per_job = int(config["workflow"]["scenes_per_job"])
     out = {}

@@ -1,3 +1,6 @@
+# Synthetic scenes, the train/validation/test split and the dataset table.
+
+
 # Scene simulation jobs of a few scenes each (common.smk: SCENE_JOBS): the training and dev scenes
 # first, so the longest chain of the DAG (scenes -> training -> inference -> evaluation -> report)
 # starts as early as it can; each scene's outputs are the same in any job.
