@@ -106,6 +106,10 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     || { echo "setup: the environment in $VENV does not import; see the errors above" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi
+# Compile the Numba kernels into their on-disk cache now, in the pinned numerical environment the
+# workflow's jobs run in, so that no job compiles them (python -m sonardet.warm; seconds once cached).
+(eval "$("$VENV/bin/python" -m sonardet.determinism)" && "$VENV/bin/python" -m sonardet.warm) \
+  || { echo "setup: compiling the package's kernels failed (python -m sonardet.warm, errors above)" >&2; exit 1; }
 echo "setup: ready ($("$VENV/bin/python" -c '
 import torch, open3d
 build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "CPU-only"

@@ -30,7 +30,7 @@ LAYERS = {
     "sonardet.survey": 5,
     "sonardet.methods": 6,
     "sonardet.experiments": 7, "sonardet.report": 7,
-    "sonardet.config": 8, "sonardet.workflow": 8, "sonardet.cli": 8,
+    "sonardet.config": 8, "sonardet.workflow": 8, "sonardet.cli": 8, "sonardet.warm": 8,
 }
 
 
