@@ -51,43 +51,6 @@ REPO = Path(__file__).resolve().parents[1]
 CONFIGS = ("DEFAULTS", "STUDY")
 
 
-def _synthetic_scenes(n: int, out: Path) -> list[Path]:
-    """n synthetic 40 m x 40 m scenes (~180 points/m^2 seabed, ~55 box-shaped elements)."""
-    sizes = {"reef_ring": (2.7, 2.7, 0.8), "reef_cone": (2.0, 2.0, 1.4), "tetrapod_b": (2.3, 2.5, 2.1),
-             "tetrapod_s": (1.6, 1.7, 1.5)}
-    paths = []
-    for s in range(n):
-        rng = np.random.default_rng(s)
-        ng = 288_000
-        g = np.c_[rng.uniform(0, 40, (ng, 2)), rng.normal(-11.5, 0.03, ng)]
-        pts, labels, objs = [g], [np.full(ng, -1)], []
-        for i in range(55):
-            cls = list(sizes)[i % 4]
-            l, w, h = sizes[cls]
-            cx, cy = 2 + 36 * rng.random(2)
-            area = l * w + 2 * (l + w) * h
-            k = int(180 * area)
-            loc = rng.uniform(-0.5, 0.5, (k, 3)) * [l, w, h]
-            face = rng.integers(0, 5, k)
-            loc[face == 0, 2] = h / 2
-            loc[face == 1, 0] = l / 2
-            loc[face == 2, 0] = -l / 2
-            loc[face == 3, 1] = w / 2
-            loc[face == 4, 1] = -w / 2
-            p = loc + [cx, cy, -11.5 + h / 2]
-            pts.append(p)
-            labels.append(np.full(k, i))
-            box = [float(cx), float(cy), -11.5 + h / 2, l, w, h, 0.0]
-            objs.append({"id": i, "cls": cls, "pose": {"t": box[:3], "q": [1, 0, 0, 0]}, "box": box,
-                         "n_points": k, "visible": True})
-        sid = f"syn{s:03d}"
-        np.savez(out / f"{sid}.npz", xyz=np.vstack(pts), label=np.concatenate(labels))
-        (out / f"{sid}.json").write_text(json.dumps({"schema_version": 1, "scene": sid, "seed": s, "config_hash": "bench",
-                                                     "extent": [0, 40, 0, 40], "objects": objs}))
-        paths.append(out / f"{sid}.npz")
-    return paths
-
-
 def _scene_paths(n: int, synthetic: bool, tmp: Path) -> list[Path]:
     split = REPO / "results" / "splits" / "train.txt"
     if not synthetic and split.exists():
@@ -96,7 +59,9 @@ def _scene_paths(n: int, synthetic: bool, tmp: Path) -> list[Path]:
         paths = [p for p in paths if p.exists()][:n]
         if len(paths) == n:
             return paths
-    return _synthetic_scenes(n, tmp)
+    from sonardet.sim.boxes import write_box_scenes
+
+    return write_box_scenes(tmp, n)  # 40 m x 40 m, ~180 points/m^2, 55 box-shaped elements
 
 
 def _profile_step(step, dev, rows: int, shapes: bool = False) -> str:

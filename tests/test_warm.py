@@ -15,15 +15,15 @@ import sys
 from conftest import REPO
 
 _AFTER_WARM = """
-import json, sys, tempfile
+import json, tempfile
 from pathlib import Path
-import numpy as np
 from sonardet import warm
 from sonardet.detect.sasa import train
 from sonardet.jit import compile_stats
+from sonardet.sim.boxes import write_box_scenes
 
 with tempfile.TemporaryDirectory() as tmp:
-    scenes = [warm._box_scene(Path(tmp), seed) for seed in (5, 6)]
+    scenes = write_box_scenes(Path(tmp), 2, extent_m=20.0, points_per_m2=50.0, n_objects=8, first_seed=5)
     train(scenes, scenes[1:], {"epochs": 1, "batch_size": 2, "n_points": 2048, "num_threads": 1, "progress": False,
                                "val_every_epochs": 1}, Path(tmp) / "model", device="cpu", resume=False)
 sasa = compile_stats()

@@ -1,9 +1,9 @@
 """Synthesize scenes: seabed, rocks, settled objects, MBES survey, annotations.
 
-One synthetic scene per job (its wildcard), which also writes its settled layout (output
-`settled`); or a whole scene set made under another config (params `scenes`, outputs in that
-order), whose realism sets apply the synthetic scenes' settled layouts (input `settled`, same order)
-instead of running the physics again (sonardet.sim.scene.apply_settled).
+The scenes of params `scenes`, outputs in that order: a few synthetic scenes per job, each also
+writing its settled layout (output `settled`); or a whole scene set made under another config, whose
+realism sets apply the synthetic scenes' settled layouts (input `settled`, same order) instead of
+running the physics again (sonardet.sim.scene.apply_settled).
 """
 
 from common import job
@@ -27,7 +27,7 @@ with job(snakemake, "simulate_scene") as log:  # noqa: F821
     smk = snakemake  # noqa: F821
     cfg = smk.params.config
     objects = {os.path.basename(p)[: -len(".json")]: read_object(p) for p in smk.input.meta}
-    ids = list(getattr(smk.params, "scenes", None) or [smk.wildcards.scene])
+    ids = list(smk.params.scenes)
     npz_out, json_out = files(smk.output, "npz"), files(smk.output, "json")
     settled_in, settled_out = files(smk.input, "settled"), files(smk.output, "settled")
     for i, sid in enumerate(ids):

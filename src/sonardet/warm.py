@@ -7,7 +7,8 @@ process loads them from the cache (:mod:`sonardet.jit`). Numba keys its cache on
 argument types, so the kernels are compiled by running the real code paths once on tiny inputs, not
 by calling them with guessed types:
 
-* SASA: a tiny network trained for one epoch on two small synthetic scenes with validation on one
+* SASA: a tiny network trained for one epoch on two small box scenes (:mod:`sonardet.sim.boxes`) with
+  validation on one
   (training and inference paths: sampling, ball query, batch norm, segment max, NMS), once with the
   fused kernels' serial row loops and once with their parallel ones (``PARALLEL_MIN_ELEMENTS`` 0);
 * the model-based detector (``ours``: ground model, proposals, grid ICP, scoring) on a short survey
@@ -22,7 +23,6 @@ suite checks these code paths' results.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import tempfile
@@ -41,33 +41,6 @@ _SASA_TINY = {
     "sa_aggregation": [16, 32, 32], "sa_confidence_mlps": [[16], [16]], "vote_mlp": [16],
     "val_every_epochs": 1, "num_threads": 1, "progress": False,
 }
-_BOX_SIZES_M = {"reef_ring": (2.7, 2.7, 0.8), "reef_cone": (2.0, 2.0, 1.4), "tetrapod_b": (2.3, 2.5, 2.1),
-                "tetrapod_s": (1.6, 1.7, 1.5)}
-
-
-def _box_scene(folder: Path, seed: int) -> Path:
-    """A 20 m x 20 m scene file (seabed at -11.5 m and 8 box-shaped elements, two of each class, with
-    their labels) in the layout of the simulator's scenes; returns the ``.npz`` path."""
-    rng = np.random.default_rng(seed)
-    n_ground = 20_000
-    pts = [np.c_[rng.uniform(0, 20, (n_ground, 2)), rng.normal(-11.5, 0.03, n_ground)]]
-    labels, objs = [np.full(n_ground, -1)], []
-    for i in range(8):
-        cls = list(_BOX_SIZES_M)[i % 4]
-        size = np.asarray(_BOX_SIZES_M[cls])
-        centre = np.r_[2.5 + 4.5 * (i % 4) + rng.uniform(-0.5, 0.5), 5.0 + 10.0 * (i // 4), -11.5 + size[2] / 2]
-        surface = rng.uniform(-0.5, 0.5, (600, 3)) * size
-        surface[:, 2] = np.where(rng.random(600) < 0.4, size[2] / 2, surface[:, 2])
-        pts.append(surface + centre)
-        labels.append(np.full(600, i))
-        box = [float(v) for v in centre] + [float(v) for v in size] + [0.0]
-        objs.append({"id": i, "cls": cls, "pose": {"t": box[:3], "q": [1, 0, 0, 0]}, "box": box, "n_points": 600,
-                     "visible": True})
-    sid = f"warm{seed}"
-    np.savez(folder / f"{sid}.npz", xyz=np.vstack(pts), label=np.concatenate(labels))
-    (folder / f"{sid}.json").write_text(json.dumps({"schema_version": 1, "scene": sid, "seed": seed,
-                                                    "config_hash": "warm", "extent": [0, 20, 0, 20], "objects": objs}))
-    return folder / f"{sid}.npz"
 
 
 def warm_sasa(folder: Path) -> None:
@@ -75,8 +48,9 @@ def warm_sasa(folder: Path) -> None:
     and then their parallel row loops; outputs go to ``folder``."""
     from .detect.sasa import train
     from .detect.sasa.ops import kernels
+    from .sim.boxes import write_box_scenes
 
-    scenes = [_box_scene(folder, seed) for seed in (0, 1)]
+    scenes = write_box_scenes(folder, 2, extent_m=20.0, points_per_m2=50.0, n_objects=8)
     default_min = kernels.PARALLEL_MIN_ELEMENTS
     try:
         for k, min_elements in enumerate((default_min, 0)):
