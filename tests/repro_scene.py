@@ -4,6 +4,8 @@ a numerical library shows up as a changed digest.
 
     python tests/repro_scene.py            # print the digests (JSON)
     python tests/repro_scene.py --update   # rewrite tests/data/repro_digests.json (after a deliberate change)
+    python tests/repro_scene.py --record-kind NAME  # record the digests that differ on this kind of CPU
+                                                    # (tests/data/repro_digests_cpu_kinds.json)
 
 Each digest is a SHA-256 of values rounded to a grid far above floating-point noise (soundings and
 template points to 0.1 mm, poses to 0.1 mm / 1e-6, mesh vertices to 1 nm) together with the exact
@@ -24,6 +26,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 EXPECTED = ROOT / "tests" / "data" / "repro_digests.json"
+#: Digests that differ on other kinds of CPU (the ray caster's last bits; `sonardet.determinism`), per kind.
+KINDS = ROOT / "tests" / "data" / "repro_digests_cpu_kinds.json"
 
 
 def _sha(*arrays) -> str:
@@ -81,10 +85,33 @@ def digests(work: Path) -> dict:
     return out
 
 
+def cpu_model() -> str:
+    """The CPU's model name (Linux ``/proc/cpuinfo``) and its AVX-512 flags, for the record of a kind."""
+    try:
+        info = Path("/proc/cpuinfo").read_text(errors="replace").splitlines()
+    except OSError:
+        return "unknown"
+    name = next((ln.split(":", 1)[1].strip() for ln in info if ln.startswith("model name")), "unknown")
+    flags = next((ln.split(":", 1)[1].split() for ln in info if ln.startswith("flags")), [])
+    return f"{name}; {' '.join(sorted(f for f in flags if f.startswith('avx512'))) or 'no AVX-512'}"
+
+
+def record_kind(result: dict, kind: str) -> dict:
+    """The digests of `result` that differ from EXPECTED's, recorded in KINDS under `kind` with this CPU."""
+    expected = json.loads(EXPECTED.read_text())
+    kinds = json.loads(KINDS.read_text()) if KINDS.exists() else {"kinds": {}}  # its "note" is kept
+    differ = {k: v for k, v in result.items() if k != "bytes" and expected.get(k) != v}
+    kinds["kinds"][kind] = {"cpu": cpu_model(), "digests": differ}
+    KINDS.write_text(json.dumps(kinds, indent=1, sort_keys=True) + "\n")
+    return differ
+
+
 if __name__ == "__main__":
     with tempfile.TemporaryDirectory() as tmp:
         result = digests(Path(tmp))
     text = json.dumps(result, indent=1, sort_keys=True) + "\n"
     if "--update" in sys.argv:
         EXPECTED.write_text(text)
+    if "--record-kind" in sys.argv:
+        record_kind(result, sys.argv[sys.argv.index("--record-kind") + 1])
     print(text, end="")

@@ -20,7 +20,9 @@ path from the CPU it finds at run time:
 
 Not pinned: Embree (Open3D's ray caster, float32) selects SSE/AVX2/AVX-512 kernels itself and reads
 no environment variable; machines with the same instruction sets cast identically, an AVX2 and an
-AVX-512 machine may differ in the last bit of a range. Thread counts of Embree's BVH build and of the
+AVX-512 machine may differ in the last bit of a range. Measured: an Intel Xeon with AVX-512 FP16
+gave other scene soundings and template scans than the AMD EPYC (AVX-512) the checked-in digests
+come from, with equal meshes and settled poses (tests/data/repro_digests_cpu_kinds.json). Thread counts of Embree's BVH build and of the
 casts did not change a byte (one and two cores, measured).
 
 The variables act when a process starts (the libraries read them once, when loaded): the workflow
