@@ -86,21 +86,38 @@ def digests(work: Path) -> dict:
 
 
 def cpu_model() -> str:
-    """The CPU's model name (Linux ``/proc/cpuinfo``) and its AVX-512 flags, for the record of a kind."""
-    try:
-        info = Path("/proc/cpuinfo").read_text(errors="replace").splitlines()
-    except OSError:
-        return "unknown"
-    name = next((ln.split(":", 1)[1].strip() for ln in info if ln.startswith("model name")), "unknown")
-    flags = next((ln.split(":", 1)[1].split() for ln in info if ln.startswith("flags")), [])
-    return f"{name}; {' '.join(sorted(f for f in flags if f.startswith('avx512'))) or 'no AVX-512'}"
+    """The CPU's model name and its AVX-512 flags, for the record of a kind."""
+    from sonardet.determinism import cpu_flags
+    from sonardet.report.summary import machine_info
+
+    avx512 = " ".join(sorted(f for f in cpu_flags() if f.startswith("avx512"))) or "no AVX-512"
+    return f"{machine_info()['cpu_model']}; {avx512}"
+
+
+def differing(expected: dict, got: dict) -> set:
+    """The digest keys (all but the informative "bytes") whose value in `got` differs from `expected`."""
+    return {k for k, v in got.items() if k != "bytes" and expected.get(k) != v}
+
+
+def matching_kind(expected: dict, kinds: dict, got: dict) -> str | None:
+    """The name of the recorded CPU kind whose digests explain every difference of `got` from `expected`
+    ("reference" when there is none), or None. A kind matches only as a whole: each digest it records
+    must equal `got`'s, and every key that differs from the reference must be one of them."""
+    differ = differing(expected, got)
+    if not differ:
+        return "reference"
+    for name, rec in kinds.get("kinds", {}).items():
+        digests = rec["digests"]
+        if differ <= set(digests) and all(got.get(k) == v for k, v in digests.items()):
+            return name
+    return None
 
 
 def record_kind(result: dict, kind: str) -> dict:
     """The digests of `result` that differ from EXPECTED's, recorded in KINDS under `kind` with this CPU."""
     expected = json.loads(EXPECTED.read_text())
     kinds = json.loads(KINDS.read_text()) if KINDS.exists() else {"kinds": {}}  # its "note" is kept
-    differ = {k: v for k, v in result.items() if k != "bytes" and expected.get(k) != v}
+    differ = {k: result[k] for k in sorted(differing(expected, result))}
     kinds["kinds"][kind] = {"cpu": cpu_model(), "digests": differ}
     KINDS.write_text(json.dumps(kinds, indent=1, sort_keys=True) + "\n")
     return differ

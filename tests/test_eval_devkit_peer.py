@@ -174,7 +174,8 @@ def _rounding_sensitive_pairs() -> list:
     """(gt_xy, pred_xy) pairs at decimal coordinates whose offset is a scaled (0.3, 0.4, 0.5) triangle and
     whose distance is within an ulp of the threshold: there `sqrt(dx*dx + dy*dy)` and the devkit's
     `np.linalg.norm` (BLAS dot, fused multiply-add) disagree about `distance < threshold`. Empty on a
-    machine whose BLAS does not fuse."""
+    machine whose BLAS does not fuse. Found with this process's BLAS kernels; both evaluations then
+    run under the pinned ones (`_pinned_env`)."""
     rng = np.random.default_rng(7)
     out = []
     for _ in range(20000):

@@ -23,8 +23,9 @@ from sonardet.determinism import pinned_environment
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "tests" / "repro_scene.py"
-EXPECTED = ROOT / "tests" / "data" / "repro_digests.json"
-KINDS = ROOT / "tests" / "data" / "repro_digests_cpu_kinds.json"
+sys.path.insert(0, str(SCRIPT.parent))
+
+from repro_scene import EXPECTED, KINDS, differing, matching_kind  # noqa: E402
 
 
 def run_digests(extra_env: dict | None = None) -> dict:
@@ -35,20 +36,6 @@ def run_digests(extra_env: dict | None = None) -> dict:
     return json.loads(res.stdout)
 
 
-def matching_kind(expected: dict, kinds: dict, got: dict) -> str | None:
-    """The name of the recorded CPU kind whose digests explain every difference of `got` from `expected`
-    ("reference" when there is none), or None. A kind matches only as a whole: each digest it records
-    must equal `got`'s, and every key that differs from the reference must be one of them."""
-    differ = {k for k, v in got.items() if k != "bytes" and expected.get(k) != v}
-    if not differ:
-        return "reference"
-    for name, rec in kinds.get("kinds", {}).items():
-        digests = rec["digests"]
-        if differ <= set(digests) and all(got.get(k) == v for k, v in digests.items()):
-            return name
-    return None
-
-
 @pytest.mark.slow
 def test_small_scene_matches_the_checked_in_digests():
     expected = json.loads(EXPECTED.read_text())
@@ -56,7 +43,7 @@ def test_small_scene_matches_the_checked_in_digests():
     got = run_digests()
     if matching_kind(expected, kinds, got) is not None:
         return
-    changed = {k: (expected.get(k), v) for k, v in got.items() if k != "bytes" and expected.get(k) != v}
+    changed = {k: (expected.get(k), got[k]) for k in sorted(differing(expected, got))}
     raise AssertionError(
         "the simulation of the smoke scene changed (reference digests, now; no recorded CPU kind of "
         f"{KINDS.name} explains it): {json.dumps(changed, indent=1)}; if intended, run "
