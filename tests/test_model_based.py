@@ -359,6 +359,25 @@ def test_paper_refinement_and_tight_fitness(templates):
     assert tight_fitness(np.zeros((0, 3)), tree, res, p["score_corr_m"]) == 0.0
 
 
+def test_paper_icp_backends_give_the_same_detections(objects, templates, sensor):
+    """The compiled point-to-point ICP (default) and Open3D's: the same detections on a scene of two
+    touching cones and a tetrapod (boxes and scores to rounding), the same counts of windows and ICP
+    runs."""
+    cone, tet = objects["reef_cone"], objects["tetrapod_s"]
+    placed = [(cone, *place(cone, 5.0, 6.0, 0.0)), (cone, *place(cone, 7.02, 6.3, 0.4)),
+              (tet, *place(tet, 9.5, 8.0, 0.7))]
+    xyz = survey(placed, sensor)
+    a, sa = detect(xyz, templates, objects, variant="paper")
+    b, sb = detect(xyz, templates, objects, {"icp_backend": "open3d"}, variant="paper")
+    assert len(a) == len(b) >= 3
+    for x, y in zip(a, b):
+        assert x["cls"] == y["cls"] and np.abs(np.subtract(x["box"], y["box"])).max() < 1e-9
+        assert x["score"] == pytest.approx(y["score"], abs=1e-9)
+    assert (sa["icp_runs"], sa["windows"], sa["icp_declined"]) == (sb["icp_runs"], sb["windows"], sb["icp_declined"])
+    with pytest.raises(ValueError, match="icp_backend"):
+        resolve_params({"icp_backend": "pcl"}, "paper")
+
+
 def test_paper_ring_alone_gives_one_detection(objects, templates, sensor):
     """A ring alone: the smaller templates fitted to parts of its rim are duplicates of it, not objects."""
     ring = objects["reef_ring"]

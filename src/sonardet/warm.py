@@ -11,8 +11,9 @@ by calling them with guessed types:
   validation on one
   (training and inference paths: sampling, ball query, batch norm, segment max, NMS), once with the
   fused kernels' serial row loops and once with their parallel ones (``PARALLEL_MIN_ELEMENTS`` 0);
-* the model-based detector (``ours``: ground model, proposals, grid ICP, scoring) on a short survey
-  line over one cone on a flat seabed, made with the project's sonar model.
+* the model-based detectors (``ours``: ground model, proposals, grid ICP, scoring; ``paper``: the
+  windows' point-to-point ICP) on a short survey line over one cone on a flat seabed, made with the
+  project's sonar model.
 
 What it prints: the compilations and their seconds (:func:`sonardet.jit.compile_stats`). A second
 run compiles nothing (every kernel loads from the cache) and takes a few seconds. The results are
@@ -61,8 +62,8 @@ def warm_sasa(folder: Path) -> None:
 
 
 def warm_model_based() -> None:
-    """Run the ``ours`` detector on one survey line over a cone on a flat seabed (the default
-    config's cone and sensor; templates of a few views)."""
+    """Run the ``ours`` and ``paper`` detectors on one survey line over a cone on a flat seabed (the
+    default config's cone and sensor; templates of a few views)."""
     from .config import validate_config
     from .detect.model_based import ModelBasedDetector
     from .objects import build_object, object_info
@@ -81,7 +82,8 @@ def warm_model_based() -> None:
     placed = (vertices + [5.0, 5.0, -11.5 - vertices[:, 2].min()], np.asarray(cone.mesh.faces))
     line = straight_line((-1.0, 9.0), (11.0, 9.0), 0.0, sensor, 11.5)
     xyz = scan(RaycastTarget([seabed, placed]), line, sensor, np.random.default_rng(0)).xyz
-    ModelBasedDetector(templates, {"reef_cone": cone}, variant="ours")(xyz)
+    for variant in ("ours", "paper"):
+        ModelBasedDetector(templates, {"reef_cone": cone}, variant=variant)(xyz)
 
 
 def main(argv=None) -> int:

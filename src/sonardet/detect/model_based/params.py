@@ -161,6 +161,7 @@ PAPER: dict = {
     "icp_max_iter": 30,
     "icp_refine_corr_m": 0.1,
     "icp_refine_iter": 20,
+    "icp_backend": "compiled",
     "icp_min_points_n": 10,
     "template_view": "nadir",
     "surface_spacing_m": 0.06,
@@ -380,6 +381,9 @@ DESCRIPTIONS: dict = {
     "icp_max_iter": ("-", "point-to-point ICP iterations (paper)"),
     "icp_refine_corr_m": ("m", "correspondence distance of the point-to-point ICP refinement that follows (paper)"),
     "icp_refine_iter": ("-", "iterations of that refinement (paper; 0: no refinement)"),
+    "icp_backend": ("-", "paper: 'compiled' (Open3D's point-to-point ICP algorithm, compiled on one search grid "
+                         "per window, sonardet.detect.model_based.window_icp) or 'open3d' (Open3D's "
+                         "registration_icp; the same poses to rounding, slower)"),
     "template_view": ("-", "'nadir' (view under the track, yaw 0) or 'all' (every view tried, best RMSE)"),
     "fitness_min": ("-", "least share of template points with a correspondence (paper)"),
     "score": ("-", "paper ranking: 'rmse' (1 - rmse / rmse_max), 'fitness_rmse' (fitness x that) or "
@@ -415,6 +419,8 @@ def resolve_params(params: dict | None, variant: str) -> dict:
         out[k] = copy.deepcopy(v)
     if not 0.0 <= float(out.get("window_overlap", 0.5)) < 1.0:
         raise ValueError(f"window_overlap must be in [0, 1), got {out['window_overlap']}")
+    if out.get("icp_backend", "compiled") not in ("compiled", "open3d"):
+        raise ValueError(f"icp_backend must be 'compiled' or 'open3d', got {out['icp_backend']!r}")
     return out
 
 

@@ -114,14 +114,15 @@ def _point_to_plane_tukey(k_m: float):
 
 def icp_point_to_point(template: np.ndarray, window: np.ndarray, max_corr_m: float, max_iter: int,
                        R0: np.ndarray | None = None, min_points: int = 10,
-                       min_thickness_m: float = 0.0) -> IcpResult | None:
+                       min_thickness_m: float = 0.0, grid=None) -> IcpResult | None:
     """The source study's registration: template (canonical, (K,3)) onto window points ((M,3), scene frame).
 
     Initial pose: rotation R0 (identity by default) and the translation that puts the template's
     centroid on the window's centroid; then point-to-point ICP (`max_corr_m` correspondence distance,
-    `max_iter` iterations). Returns None for degenerate input (fewer than `min_points`, collinear or
-    non-finite points; a window thinner than `min_thickness_m`), a non-finite result or one without
-    correspondences.
+    `max_iter` iterations): Open3D's `registration_icp`, or, with `grid` (a `window_icp.WindowGrid` of
+    the window points), the same algorithm compiled on that grid. Returns None for degenerate input
+    (fewer than `min_points`, collinear or non-finite points; a window thinner than
+    `min_thickness_m`), a non-finite result or one without correspondences.
     """
     if degenerate_reason(template, min_points) or \
             degenerate_reason(window, min_points, min_thickness_m=min_thickness_m):
@@ -130,12 +131,21 @@ def icp_point_to_point(template: np.ndarray, window: np.ndarray, max_corr_m: flo
     T0 = np.eye(4)
     T0[:3, :3] = R0
     T0[:3, 3] = window.mean(0) - R0 @ template.mean(0)
-    res = reg.registration_icp(point_cloud(template), point_cloud(window), float(max_corr_m), T0,
-                               reg.TransformationEstimationPointToPoint(), convergence(max_iter))
-    T = np.asarray(res.transformation)
-    if not is_rigid_transform(T) or len(res.correspondence_set) < MIN_RIGID_POINTS:
+    if grid is not None:
+        from . import window_icp
+
+        try:
+            T, fitness, rmse, n_corr = window_icp.icp(template, grid, T0, max_corr_m, max_iter)
+        except np.linalg.LinAlgError:  # an SVD that did not converge: non-finite points
+            return None
+    else:
+        res = reg.registration_icp(point_cloud(template), point_cloud(window), float(max_corr_m), T0,
+                                   reg.TransformationEstimationPointToPoint(), convergence(max_iter))
+        T, fitness, rmse = np.asarray(res.transformation), float(res.fitness), float(res.inlier_rmse)
+        n_corr = len(res.correspondence_set)
+    if not is_rigid_transform(T) or n_corr < MIN_RIGID_POINTS:
         return None
-    return IcpResult(T[:3, :3].copy(), T[:3, 3].copy(), float(res.fitness), float(res.inlier_rmse))
+    return IcpResult(T[:3, :3].copy(), T[:3, 3].copy(), fitness, rmse)
 
 
 class SurfaceTarget:
