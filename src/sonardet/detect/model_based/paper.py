@@ -13,8 +13,8 @@
    correspondence distance `icp_refine_corr_m` (so points of neighbouring objects in the window stop
    pulling the template off the object it has locked on); RMSE and fitness are those at `icp_max_corr_m`.
    The ICP is Open3D's algorithm, run compiled on one search grid of the window's points for all three
-   steps (`icp_backend` "compiled", `window_icp`: the same poses as Open3D's to rounding, about
-   four times faster) or Open3D's `registration_icp` itself ("open3d").
+   steps (`icp_backend` "compiled", `window_icp`: the same poses as Open3D's to rounding, in
+   less than half the time of the whole detection) or Open3D's `registration_icp` itself ("open3d").
    A window holding exactly the points of an earlier window of its class gets that window's fit
    (the same input gives the same result; counted as `windows_reused`, not as ICP runs;
    `reuse_identical_windows`);
