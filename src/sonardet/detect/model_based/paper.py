@@ -48,6 +48,8 @@ from .ground import seabed
 from .params import per_class
 from .proposals import sliding_windows, window_counts
 from .registration import (
+    ICP_RELATIVE_FITNESS,
+    ICP_RELATIVE_RMSE,
     MIN_RIGID_POINTS,
     IcpResult,
     convergence,
@@ -109,7 +111,8 @@ def refine_point_to_point(template: np.ndarray, window: np.ndarray, res: IcpResu
     T[:3, :3], T[:3, 3] = res.R, res.t
     if grid is not None:
         try:
-            T, _, _, n_corr = window_icp.icp(template, grid, T, p["icp_refine_corr_m"], p["icp_refine_iter"])
+            T, _, _, n_corr = window_icp.icp(template, grid, T, p["icp_refine_corr_m"], p["icp_refine_iter"],
+                                             ICP_RELATIVE_FITNESS, ICP_RELATIVE_RMSE)
         except np.linalg.LinAlgError:
             return res
         if n_corr < MIN_RIGID_POINTS or not is_rigid_transform(T):

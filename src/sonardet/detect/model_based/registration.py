@@ -135,7 +135,8 @@ def icp_point_to_point(template: np.ndarray, window: np.ndarray, max_corr_m: flo
         from . import window_icp
 
         try:
-            T, fitness, rmse, n_corr = window_icp.icp(template, grid, T0, max_corr_m, max_iter)
+            T, fitness, rmse, n_corr = window_icp.icp(template, grid, T0, max_corr_m, max_iter,
+                                                      ICP_RELATIVE_FITNESS, ICP_RELATIVE_RMSE)
         except np.linalg.LinAlgError:  # an SVD that did not converge: non-finite points
             return None
     else:

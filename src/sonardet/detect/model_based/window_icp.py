@@ -40,7 +40,6 @@ from __future__ import annotations
 import numpy as np
 
 from ...jit import numba
-from .registration import ICP_RELATIVE_FITNESS, ICP_RELATIVE_RMSE
 
 __all__ = ["WindowGrid", "evaluate", "icp"]
 
@@ -73,17 +72,19 @@ class WindowGrid:
         self.start, self.order, self.sorted = _bucket(pts, self.origin, cell, self.dims)
 
 
-def icp(template: np.ndarray, grid: WindowGrid, T0: np.ndarray, max_corr_m: float,
-        max_iter: int) -> tuple[np.ndarray, float, float, int]:
+def icp(template: np.ndarray, grid: WindowGrid, T0: np.ndarray, max_corr_m: float, max_iter: int,
+        relative_fitness: float, relative_rmse: float) -> tuple[np.ndarray, float, float, int]:
     """Open3D's point-to-point `registration_icp` of `template` (K,3, canonical) onto the grid's window
-    points from pose `T0` (4x4), with correspondence distance `max_corr_m` (m, <= the grid's cell)
-    and at most `max_iter` iterations (module doc). Returns the pose (4x4), fitness, inlier RMSE (m)
-    and the number of correspondences of the last pass."""
+    points from pose `T0` (4x4), with correspondence distance `max_corr_m` (m) and at most
+    `max_iter` iterations, stopping when fitness and inlier RMSE change by less than
+    `relative_fitness` and `relative_rmse` (m) (Open3D's convergence criteria; the callers pass
+    `registration.ICP_RELATIVE_*`). Returns the pose (4x4), fitness, inlier RMSE (m) and the number of
+    correspondences of the last pass."""
     _check_distance(grid, max_corr_m)
     src = np.ascontiguousarray(template, dtype=np.float64)
     T, fit, rmse, n = _icp(src, np.ascontiguousarray(T0, dtype=np.float64), grid.sorted, grid.start, grid.origin,
-                           grid.cell_m, grid.dims, float(max_corr_m), int(max_iter), ICP_RELATIVE_FITNESS,
-                           ICP_RELATIVE_RMSE)
+                           grid.cell_m, grid.dims, float(max_corr_m), int(max_iter), float(relative_fitness),
+                           float(relative_rmse))
     return T, float(fit), float(rmse), int(n)
 
 
