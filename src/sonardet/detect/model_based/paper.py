@@ -115,25 +115,26 @@ def refine_point_to_point(template: np.ndarray, window: np.ndarray, res: IcpResu
                                              ICP_RELATIVE_FITNESS, ICP_RELATIVE_RMSE)
         except np.linalg.LinAlgError:
             return res
-        if n_corr < MIN_RIGID_POINTS or not is_rigid_transform(T):
-            return res
-        fitness, rmse, _ = window_icp.evaluate(template, grid, T, p["icp_max_corr_m"])
-        return IcpResult(T[:3, :3].copy(), T[:3, 3].copy(), fitness, rmse)
-    reg = o3d.pipelines.registration
-    src, tgt = point_cloud(template), point_cloud(window)
-    r = reg.registration_icp(src, tgt, float(p["icp_refine_corr_m"]), T, reg.TransformationEstimationPointToPoint(),
-                             convergence(p["icp_refine_iter"]))
-    T = np.asarray(r.transformation)
-    if len(r.correspondence_set) < MIN_RIGID_POINTS or not is_rigid_transform(T):
+    else:
+        reg = o3d.pipelines.registration
+        src, tgt = point_cloud(template), point_cloud(window)
+        r = reg.registration_icp(src, tgt, float(p["icp_refine_corr_m"]), T,
+                                 reg.TransformationEstimationPointToPoint(), convergence(p["icp_refine_iter"]))
+        T, n_corr = np.asarray(r.transformation), len(r.correspondence_set)
+    if n_corr < MIN_RIGID_POINTS or not is_rigid_transform(T):
         return res
-    ev = reg.evaluate_registration(src, tgt, float(p["icp_max_corr_m"]), T)
-    return IcpResult(T[:3, :3].copy(), T[:3, 3].copy(), float(ev.fitness), float(ev.inlier_rmse))
+    if grid is not None:
+        fitness, rmse, _ = window_icp.evaluate(template, grid, T, p["icp_max_corr_m"])
+    else:
+        ev = reg.evaluate_registration(src, tgt, float(p["icp_max_corr_m"]), T)
+        fitness, rmse = float(ev.fitness), float(ev.inlier_rmse)
+    return IcpResult(T[:3, :3].copy(), T[:3, 3].copy(), fitness, rmse)
 
 
 def window_grid(window: np.ndarray, p: dict) -> window_icp.WindowGrid | None:
-    """The `WindowGrid` of a window's points (M,3, scene frame) that serves every correspondence distance
-    of the registration (`icp_backend` "compiled"), or None (backend "open3d", or too few points to
-    grid)."""
+    """The `WindowGrid` of a window's points (M,3, scene frame) for every step of the registration
+    (`icp_backend` "compiled"; cells of the larger correspondence distance), or None (backend
+    "open3d", or an empty or non-finite window, which the registration declines anyway)."""
     if p["icp_backend"] != "compiled" or len(window) == 0 or not np.isfinite(window).all():
         return None
     return window_icp.WindowGrid(window, max(float(p["icp_max_corr_m"]), float(p["icp_refine_corr_m"])))

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
+from . import window_icp
+
 reg = o3d.pipelines.registration
 
 #: ICP stops when the relative change of fitness and of inlier RMSE between iterations falls below these.
@@ -132,8 +134,6 @@ def icp_point_to_point(template: np.ndarray, window: np.ndarray, max_corr_m: flo
     T0[:3, :3] = R0
     T0[:3, 3] = window.mean(0) - R0 @ template.mean(0)
     if grid is not None:
-        from . import window_icp
-
         try:
             T, fitness, rmse, n_corr = window_icp.icp(template, grid, T0, max_corr_m, max_iter,
                                                       ICP_RELATIVE_FITNESS, ICP_RELATIVE_RMSE)

@@ -6,9 +6,8 @@ to `icp_refine_iter` more, at a tighter correspondence distance) and an evaluati
 distance. Open3D's `registration_icp` and `evaluate_registration` do this at 2.9-4.0 ms a window (one
 thread), and they hold their search structure only for one call: three k-d trees of the same window
 points a window, and two point clouds copied in and out of Python per call. Here the window's points
-are bucketed once into a regular grid (`WindowGrid`, cells at least as large as the largest
-correspondence distance) that serves all three steps, and each step runs in one compiled call
-(Numba). No library offers point-to-point ICP on a search structure kept across calls, hence this
+are bucketed once into a regular grid (`WindowGrid`) that serves all three steps, and each step runs
+in one compiled call (Numba). No library offers point-to-point ICP on a search structure kept across calls, hence this
 module.
 
 What it computes is Open3D's `RegistrationICP` with `TransformationEstimationPointToPoint` (without
@@ -29,7 +28,8 @@ scaling), step for step:
 It differs from Open3D only in the last bits: the SVD is LAPACK's, not Eigen's Jacobi SVD, the means
 are summed in another order, and between two target points at exactly the same distance another one
 may be taken. `tests/test_window_icp.py` compares poses, fitness and RMSE with Open3D on windows of a
-simulated scene; the variant's `icp_backend` "open3d" runs Open3D's functions instead.
+synthetic surface, `tests/test_model_based.py` the `paper` detections of both on a simulated scene;
+the variant's `icp_backend` "open3d" runs Open3D's functions instead.
 
 Frames: template points in the object's canonical frame, window points in the detector's local scene
 frame (m); a pose T (4x4) maps canonical -> scene, as in `registration.icp_point_to_point`.
@@ -51,9 +51,11 @@ _JIT = dict(cache=True, nogil=True)
 
 
 class WindowGrid:
-    """A window's points (M,3, scene frame, m) bucketed into cubic cells of side >= `cell_m` (m), the
-    largest correspondence distance the grid serves (a point's neighbours within that distance lie in
-    its cell's 3 x 3 x 3 block)."""
+    """A window's points (M,3, scene frame, m) bucketed into cubic cells of side `cell_m` (m; doubled
+    until the grid has at most `MAX_CELLS` cells). A search visits the cells a ball of the
+    correspondence distance reaches, so any distance works; cells about that distance wide were the
+    fastest measured (`paper` uses its larger one). `sorted`: the points in cell order, `start`: each
+    cell's first index into it (n_cells + 1), `order`: each sorted point's index in `points`."""
 
     def __init__(self, points: np.ndarray, cell_m: float):
         pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -61,7 +63,6 @@ class WindowGrid:
             raise ValueError(f"WindowGrid: points must be a non-empty finite (M,3) array, got shape {pts.shape}")
         if not cell_m > 0:
             raise ValueError(f"WindowGrid: cell_m must be > 0, got {cell_m}")
-        self.points = pts
         self.origin = pts.min(0)
         span = pts.max(0) - self.origin
         cell = float(cell_m)
@@ -80,7 +81,7 @@ def icp(template: np.ndarray, grid: WindowGrid, T0: np.ndarray, max_corr_m: floa
     `relative_fitness` and `relative_rmse` (m) (Open3D's convergence criteria; the callers pass
     `registration.ICP_RELATIVE_*`). Returns the pose (4x4), fitness, inlier RMSE (m) and the number of
     correspondences of the last pass."""
-    _check_distance(grid, max_corr_m)
+    _check_distance(max_corr_m)
     src = np.ascontiguousarray(template, dtype=np.float64)
     T, fit, rmse, n = _icp(src, np.ascontiguousarray(T0, dtype=np.float64), grid.sorted, grid.start, grid.origin,
                            grid.cell_m, grid.dims, float(max_corr_m), int(max_iter), float(relative_fitness),
@@ -92,7 +93,7 @@ def evaluate(template: np.ndarray, grid: WindowGrid, T: np.ndarray, max_corr_m: 
     """Open3D's `evaluate_registration` of `template` (K,3, canonical) moved by pose `T` (4x4) against
     the grid's window points at correspondence distance `max_corr_m` (m): fitness, inlier RMSE (m) and
     the number of correspondences."""
-    _check_distance(grid, max_corr_m)
+    _check_distance(max_corr_m)
     src = _moved(np.ascontiguousarray(template, dtype=np.float64), np.ascontiguousarray(T, dtype=np.float64))
     n, e2 = _correspond(src, grid.sorted, grid.start, grid.origin, grid.cell_m, grid.dims, float(max_corr_m),
                         np.full(len(src), -1, np.int64))
@@ -100,7 +101,7 @@ def evaluate(template: np.ndarray, grid: WindowGrid, T: np.ndarray, max_corr_m: 
     return float(fit), float(rmse), int(n)
 
 
-def _check_distance(grid: WindowGrid, max_corr_m: float) -> None:
+def _check_distance(max_corr_m: float) -> None:
     if not 0 < max_corr_m < np.inf:
         raise ValueError(f"correspondence distance must be > 0 and finite, got {max_corr_m} m")
 
