@@ -32,9 +32,15 @@ def test_near_grid_matches_the_kdtree(seed):
     rng = np.random.default_rng(seed)
     pts = rng.uniform([-1, -1, -0.5], [2, 1.5, 1.0], size=(2000, 3))
     pts[:200] = pts[0] + rng.normal(0, 0.01, (200, 3))  # a dense clump: long columns
+    pts[200:400, 2] = np.round(pts[200:400, 2], 1)  # equal heights within a column
     q = rng.uniform([-1.5, -1.5, -1.0], [2.5, 2.0, 1.5], size=(20000, 3))  # some off the grid
     for r in (0.03, 0.08, 0.2):
-        got = NearGrid(pts, r).any_within(q)
+        g = NearGrid(pts, r)
+        for c in range(g.nx * g.ny):  # each column sorted by height, holding the points of that column
+            assert np.all(np.diff(g.pts[g.start[c]:g.start[c + 1], 2]) >= 0)
+        as_rows = lambda a: np.sort(np.ascontiguousarray(a).view("f8,f8,f8"), axis=0)  # noqa: E731
+        np.testing.assert_array_equal(as_rows(g.pts), as_rows(pts))  # the same points, none lost
+        got = g.any_within(q)
         want = _kdtree_hits(pts, q, r)
         assert want.any() and (~want).any()
         np.testing.assert_array_equal(got, want)

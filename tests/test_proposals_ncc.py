@@ -110,3 +110,41 @@ def test_one_correlator_for_every_class_of_a_round_gives_the_same_maps():
     assert {(n, shared._fshape(ks)[1], 0.15) for n, ks in needed} == set(shared._spectra)
     with pytest.raises(ValueError, match="another raster"):
         ncc_maps(Raster(h.copy(), 0.0, 0.0, 0.1), classes[0], 0.15, 0.5, shared)
+
+
+def _peaks_reference(best, occ_frac, ncc_min, occ_min, nms_radius_cells):
+    """ncc_peaks with SciPy's maximum filter over the whole raster."""
+    from scipy import ndimage as ndi
+
+    size = 2 * max(1, int(nms_radius_cells)) + 1
+    mx = ndi.maximum_filter(best, size=size, mode="constant", cval=-1.0)
+    i, j = np.nonzero((best >= mx) & (best >= ncc_min) & (occ_frac >= occ_min))
+    order = np.argsort(-best[i, j], kind="stable")
+    return i[order], j[order]
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_ncc_peaks_equal_the_maximum_filter(dtype):
+    """The peaks looked for around the cells that pass the minima only are those of the maximum filter
+    over the whole raster: ties (plateaus), peaks at the border, values below -1 beyond which the
+    filter's padding lies, radii 0 (taken as 1) to 6."""
+    from sonardet.detect.model_based.proposals import ncc_peaks
+
+    rng = np.random.default_rng(6)
+    n_peaks = 0
+    for trial in range(12):
+        best = rng.uniform(-1.2, 1.0, (61, 47)).astype(dtype)
+        best[rng.random(best.shape) < 0.3] = 0.7  # ties: plateaus of equal values
+        best[:, :3] = np.round(best[:, :3], 1)  # more ties at the border
+        if trial % 3 == 0:
+            best[:] = -1.1  # everything below the padding: no peak at the border
+            best[30, 20] = -1.05
+        occ = rng.uniform(0.0, 1.0, best.shape).astype(np.float32)
+        for r in (0, 1, 3, 6):
+            for ncc_min, occ_min in ((-2.0, 0.0), (0.2, 0.3), (0.5, 0.0)):
+                got = ncc_peaks(best, occ, ncc_min, occ_min, r)
+                want = _peaks_reference(best, occ, ncc_min, occ_min, r)
+                np.testing.assert_array_equal(got[0], want[0])
+                np.testing.assert_array_equal(got[1], want[1])
+                n_peaks += len(got[0])
+    assert n_peaks > 100  # a check that can fail

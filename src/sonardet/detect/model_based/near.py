@@ -106,15 +106,23 @@ def _columns(pts, cell):
         order[pos[c]] = k
         pos[c] += 1
     out = np.empty((n, 3))
+    for k in range(n):
+        out[k, :] = pts[order[k], :]
+    # Insertion sort of each column by z, in place: a column holds a few points, and most of a
+    # hypothesis' columns none, so a sort call (and its buffer) per column cost more than the sorting.
     for c in range(nx * ny):
         a, b = start[c], start[c + 1]
-        seg = order[a:b]
-        zs = np.empty(b - a)
-        for m in range(b - a):
-            zs[m] = pts[seg[m], 2]
-        by_z = np.argsort(zs)
-        for m in range(b - a):
-            out[a + m, :] = pts[seg[by_z[m]], :]
+        for m in range(a + 1, b):
+            x, y, z = out[m, 0], out[m, 1], out[m, 2]
+            j = m - 1
+            while j >= a and out[j, 2] > z:
+                out[j + 1, 0] = out[j, 0]
+                out[j + 1, 1] = out[j, 1]
+                out[j + 1, 2] = out[j, 2]
+                j -= 1
+            out[j + 1, 0] = x
+            out[j + 1, 1] = y
+            out[j + 1, 2] = z
     return out, start, nx, ny, lo_x, lo_y
 
 

@@ -13,6 +13,8 @@ import numpy as np
 from scipy import fft as sp_fft
 from scipy import ndimage as ndi
 
+from ...jit import numba
+
 
 @dataclass
 class Raster:
@@ -201,7 +203,8 @@ class Correlator:
     def corr(self, a_spec, k_spec, kshape) -> np.ndarray:
         """The correlation of a raster with a kernel of `kshape` from their spectra ('same' size)."""
         full, fshape = self._fshape(kshape)
-        ret = sp_fft.irfftn(a_spec * k_spec, fshape, axes=(0, 1))[: full[0], : full[1]]
+        # The product is a temporary: the inverse transform may work in it instead of a copy.
+        ret = sp_fft.irfftn(a_spec * k_spec, fshape, axes=(0, 1), overwrite_x=True)[: full[0], : full[1]]
         i0, j0 = (full[0] - self.shape[0]) // 2, (full[1] - self.shape[1]) // 2
         return ret[i0: i0 + self.shape[0], j0: j0 + self.shape[1]].copy()
 
@@ -241,23 +244,76 @@ def ncc_maps(r: Raster, kernels: list[Kernel], occupied_min_m: float, min_data_f
         occ_frac = of
         t_spec, tt_spec = ker.height_spectra(c)
         st, stt, sft = c.corr(sd, t_spec, ks), c.corr(sd, tt_spec, ks), c.corr(sf_, t_spec, ks)
-        num = sft - sf * st / n
-        den = np.sqrt(np.clip((sff - sf * sf / n) * (stt - st * st / n), 1e-12, None))
-        ncc = np.where(n >= min_data_frac * ker.support.sum(), num / den, -1.0)
-        better = ncc > best
-        best[better] = ncc[better]
-        arg[better] = k
+        _ncc_best(n, sf, sff, st, stt, sft, n >= min_data_frac * ker.support.sum(), k, best, arg)
     return best, arg, occ_frac
 
 
+@numba.njit(cache=True, nogil=True)
+def _ncc_best(n, sf, sff, st, stt, sft, ok, k, best, arg):
+    """One kernel's NCC from its correlation sums (float32 maps, as the FFTs give them) and where it
+    beats `best`, the best so far (float64), `best` and `arg` (= k) updated in place: one compiled
+    pass of the NumPy expressions
+
+        num = sft - sf * st / n
+        den = sqrt(clip((sff - sf * sf / n) * (stt - st * st / n), 1e-12, None))
+        ncc = where(ok, num / den, -1);  better = ncc > best
+
+    in float32 as NumPy evaluates them (`tests/test_proposals_ncc.py` compares with them to the bit),
+    without their nine temporary maps of the raster's size."""
+    eps = np.float32(1e-12)
+    m1 = np.float32(-1.0)
+    for i in range(n.shape[0]):
+        for j in range(n.shape[1]):
+            if ok[i, j]:
+                nn, a, b = n[i, j], sf[i, j], st[i, j]
+                v = (sff[i, j] - a * a / nn) * (stt[i, j] - b * b / nn)
+                if v < eps:  # NaN stays NaN, as in np.clip
+                    v = eps
+                ncc = (sft[i, j] - a * b / nn) / np.sqrt(v)
+            else:
+                ncc = m1
+            if np.float64(ncc) > best[i, j]:
+                best[i, j] = np.float64(ncc)
+                arg[i, j] = k
+
+
 def ncc_peaks(best: np.ndarray, occ_frac: np.ndarray, ncc_min: float, occ_min: float, nms_radius_cells: int):
-    """Row/column indices of local maxima of `best` within `nms_radius_cells` that pass both minima."""
-    size = 2 * max(1, int(nms_radius_cells)) + 1
-    mx = ndi.maximum_filter(best, size=size, mode="constant", cval=-1.0)
-    ok = (best >= mx) & (best >= ncc_min) & (occ_frac >= occ_min)
-    i, j = np.nonzero(ok)
+    """Row/column indices of local maxima of `best` within `nms_radius_cells` that pass both minima,
+    best first: the cells where best >= its (2 r + 1)^2 neighbourhood's maximum (r = the radius, at
+    least 1; -1 beyond the raster, as ``ndi.maximum_filter(best, 2 r + 1, mode="constant", cval=-1)``),
+    best >= ncc_min and occ_frac >= occ_min. The neighbourhood is looked at only around the cells that
+    pass the minima (`_local_maxima`), usually a small share of the raster."""
+    r = max(1, int(nms_radius_cells))
+    cand = (best >= ncc_min) & (occ_frac >= occ_min)
+    i, j = np.nonzero(cand)
+    keep = _local_maxima(np.ascontiguousarray(best, dtype=np.float64), i, j, r)
+    i, j = i[keep], j[keep]
     order = np.argsort(-best[i, j], kind="stable")
     return i[order], j[order]
+
+
+@numba.njit(cache=True, nogil=True)
+def _local_maxima(best, ii, jj, r):
+    """Boolean (K,): best[ii[k], jj[k]] is no less than any value of best within r cells (Chebyshev),
+    nor than -1 when that square reaches beyond the raster (`ncc_peaks`' maximum filter, evaluated at
+    these cells only)."""
+    h, w = best.shape
+    out = np.zeros(ii.shape[0], dtype=np.bool_)
+    for k in range(ii.shape[0]):
+        i, j = ii[k], jj[k]
+        v = best[i, j]
+        ok = True
+        if i - r < 0 or j - r < 0 or i + r >= h or j + r >= w:
+            ok = v >= -1.0
+        a = max(i - r, 0)
+        while ok and a <= min(i + r, h - 1):
+            for b in range(max(j - r, 0), min(j + r, w - 1) + 1):
+                if not v >= best[a, b]:
+                    ok = False
+                    break
+            a += 1
+        out[k] = ok
+    return out
 
 
 def sliding_windows(xy_min, xy_max, side_m: float, overlap: float) -> np.ndarray:
