@@ -15,6 +15,7 @@ import pytest
 
 from sonardet.report.timeline import (
     blocking_chain,
+    gantt_lanes,
     job_method,
     method_group,
     read_benchmarks,
@@ -142,6 +143,25 @@ def test_exact_records_replace_the_sampled_cpu_and_threads_count_in_the_idle_tim
     assert s["jit_recorded_jobs"] == 0 and not any("Numba" in line for line in summary_lines(s))
     assert any("before the jobs' own work" in line and "1 jobs recorded it" in line for line in summary_lines(s))
     assert list(blocking_chain(df)["job"])[-1] in {"train/m", "detect/b"}
+
+
+def test_gantt_lanes_absorb_the_exit_skew_but_not_a_real_overlap():
+    """A job that follows another seems to start up to about a second before it ended (the end is the
+    record's time, before the interpreter exits): it shares that job's lane. Three jobs that ran
+    together for a minute need three lanes."""
+    import pandas as pd
+
+    def lanes(rows):
+        df = pd.DataFrame(rows, columns=["job", "start", "end"]).sort_values("start").reset_index(drop=True)
+        return dict(zip(df["job"], gantt_lanes(df)))
+
+    skewed = lanes([("scene_a", 0.0, 100.0), ("scene_b", 0.0, 60.0), ("train", 98.98, 600.0),
+                    ("other", 60.2, 120.0), ("last", 599.5, 700.0)])
+    assert max(skewed.values()) == 1, skewed  # two cores, two lanes
+    assert skewed["train"] == skewed["scene_a"] and skewed["last"] == skewed["train"]
+    real = lanes([("a", 0.0, 100.0), ("b", 0.0, 100.0), ("c", 50.0, 150.0)])
+    assert max(real.values()) == 2, real
+    assert len(gantt_lanes(pd.DataFrame(columns=["job", "start", "end"]))) == 0
 
 
 def test_numba_compilation_is_summed_from_the_records(tmp_path):

@@ -164,7 +164,14 @@ def read_process_usage(root) -> dict | None:
         raise ValueError(f"{path}: not the workflow's process record ({exc}); delete it and rerun") from None
 
 
-def blocking_chain(df: pd.DataFrame, slack_s: float = 2.0) -> pd.DataFrame:
+#: Seconds by which a job may seem to start before the job it followed ended. A job's end is its usage
+#: record's time, written before its interpreter exits, and its start that end less the benchmark's
+#: wall seconds, which include the exit: so the start comes out early by the exit (up to 1.0 s in the
+#: b8986cc run, where a SASA training seemed to start 1.02 s before the scene job it read had ended).
+EXIT_SLACK_S = 2.0
+
+
+def blocking_chain(df: pd.DataFrame, slack_s: float = EXIT_SLACK_S) -> pd.DataFrame:
     """The blocking chain (see module doc), in time order: from the last job back, each predecessor is
     the job that ended last at most `slack_s` after this one started."""
     if df.empty:
@@ -291,36 +298,47 @@ def summary_lines(s: dict) -> list[str]:
             f"blocking chain ({s['chain_s'] / 60:.1f} min of jobs): " + " -> ".join(c["rule"] for c in s["chain"])]
 
 
-def plot_gantt(df: pd.DataFrame, out_png, cores: int, title: str = "workflow run") -> Path:
-    """A Gantt chart: one bar per job on the lane (of `cores`, plus overflow lanes for threads beyond)
-    it ran in, coloured by rule, the blocking chain outlined; x in minutes from the first start."""
-    t0 = df["start"].min() if len(df) else 0.0
+def gantt_lanes(df: pd.DataFrame, slack_s: float = EXIT_SLACK_S) -> list[int]:
+    """The lane (0, 1, ...) of each job of `df` (in its row order, by start) in a Gantt chart: the first
+    lane whose last job ended at most `slack_s` after this one started (EXIT_SLACK_S: a job seems to
+    start early by its predecessor's interpreter exit), else a new lane. So a lane beyond the cores
+    shows jobs that ran together for longer than that slack (threads beyond the cores), not the
+    recorded times' skew."""
     lanes_end: list[float] = []
     lane = []
     for r in df.itertuples():
-        free = [i for i, e in enumerate(lanes_end) if e <= r.start + 0.5]
+        free = [i for i, e in enumerate(lanes_end) if e <= r.start + slack_s]
         i = free[0] if free else len(lanes_end)
         if i == len(lanes_end):
             lanes_end.append(r.end)
         else:
             lanes_end[i] = r.end
         lane.append(i)
+    return lane
+
+
+def plot_gantt(df: pd.DataFrame, out_png, cores: int, title: str = "workflow run") -> Path:
+    """A Gantt chart: one bar per job on the lane (of `cores`, plus overflow lanes for threads beyond)
+    it ran in, coloured by rule, the blocking chain outlined; x in minutes from the first start."""
+    t0 = df["start"].min() if len(df) else 0.0
+    lane = gantt_lanes(df)
+    n_lanes = max(lane) + 1 if lane else 0
     rules = list(dict.fromkeys(df["rule"]))
     # tab20 then tab20b: distinct colours for up to 40 rules (C0-C9 repeat after 10, and the training
     # and the detection jobs, the two longest kinds, came out in the same brown)
     palette = [colormaps["tab20"](i) for i in range(20)] + [colormaps["tab20b"](i) for i in range(20)]
     cmap = {r: palette[k % len(palette)] for k, r in enumerate(rules)}
     chain = set(blocking_chain(df)["job"]) if len(df) else set()
-    fig = new_figure(10.0, 1.2 + 0.35 * max(len(lanes_end), 1) + 0.14 * math.ceil(len(rules) / 4))
+    fig = new_figure(10.0, 1.2 + 0.35 * max(n_lanes, 1) + 0.14 * math.ceil(len(rules) / 4))
     ax = fig.subplots()
     for r, ln in zip(df.itertuples(), lane):
         ax.barh(ln, (r.end - r.start) / 60.0, left=(r.start - t0) / 60.0, color=cmap[r.rule], height=0.8,
                 edgecolor="black" if r.job in chain else "none", linewidth=1.2)
     for k, r in enumerate(rules):
         ax.barh(-10, 0, color=cmap[r], label=r)  # legend entries
-    ax.set_ylim(-0.6, max(len(lanes_end), 1) - 0.4)
-    ax.set_yticks(range(len(lanes_end)), [f"lane {i + 1}" + (" (over cores)" if i >= cores else "")
-                                          for i in range(len(lanes_end))])
+    ax.set_ylim(-0.6, max(n_lanes, 1) - 0.4)
+    ax.set_yticks(range(n_lanes), [f"lane {i + 1}" + (" (over cores)" if i >= cores else "")
+                                   for i in range(n_lanes)])
     ax.set_xlabel("minutes since the first job started")
     ax.set_title(f"{title}: {len(df)} jobs; outlined: the blocking chain")
     ax.legend(fontsize=6, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.3),
