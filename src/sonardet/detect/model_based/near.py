@@ -88,8 +88,8 @@ def xy_cells(pts, cell, pad_cells):
 def _columns(pts, cell):
     """The points (N,3, N > 0) sorted by column (ix * ny + iy of the `cell` grid from their smallest x
     and y, lo_x and lo_y), then by z within a column; the columns' start offsets (nx * ny + 1,), nx,
-    ny, lo_x and lo_y. A counting sort by column and a sort of each column's few heights (the order of
-    equal heights does not matter to the test)."""
+    ny, lo_x and lo_y. A counting sort by column and an insertion sort of each column's few heights
+    (the order of equal heights does not matter to the test)."""
     n = pts.shape[0]
     ix, iy, lo_x, lo_y = xy_cells(pts, cell, 0.0)
     nx = ix.max() + 1
@@ -100,14 +100,11 @@ def _columns(pts, cell):
     for c in range(nx * ny):
         start[c + 1] += start[c]
     pos = start[:-1].copy()
-    order = np.empty(n, dtype=np.int64)
-    for k in range(n):
-        c = ix[k] * ny + iy[k]
-        order[pos[c]] = k
-        pos[c] += 1
     out = np.empty((n, 3))
     for k in range(n):
-        out[k, :] = pts[order[k], :]
+        c = ix[k] * ny + iy[k]
+        out[pos[c], :] = pts[k, :]
+        pos[c] += 1
     # Insertion sort of each column by z, in place: a column holds a few points, and most of a
     # hypothesis' columns none, so a sort call (and its buffer) per column cost more than the sorting.
     for c in range(nx * ny):
