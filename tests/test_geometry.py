@@ -43,6 +43,33 @@ def test_zero_quaternion_rejected():
         quat_normalize([0, 0, 0, 0])
 
 
+def test_one_quaternion_converts_to_the_bit_as_a_batch_of_one():
+    """A single quaternion takes a fast path on Python floats; a batch of one takes numpy's: the
+    same matrix and unit quaternion bit for bit (signs of zeros included), and both refuse alike."""
+    rng = np.random.default_rng(5)
+    qs = rng.normal(size=(3000, 4)) * 10.0 ** rng.integers(-8, 5, size=(3000, 1))
+    qs[::7, 0] = -np.abs(qs[::7, 0])                     # w < 0: the sign flip
+    qs[1::7, rng.integers(4)] = 0.0                      # exact zeros
+    qs[2::7] = np.round(qs[2::7], 1)
+    qs = np.vstack([qs, [[1, 0, 0, 0], [0, 0, 0, -1], [-0.0, 1, 0, 0], [1e200, 1e200, 0, 0], [1e-13, 1e-13, 0, 0]]])
+    for q in qs:
+        try:
+            want_m, want_q = quat_to_matrix(q[None])[0], quat_normalize(q[None])[0]
+        except ValueError:
+            for f in (quat_to_matrix, quat_normalize):
+                with pytest.raises(ValueError):
+                    f(q)
+            continue
+        got_m, got_q = quat_to_matrix(q), quat_normalize(q)
+        for got, want in ((got_m, want_m), (got_q, want_q)):
+            assert got.dtype == want.dtype and got.shape == want.shape
+            assert np.array_equal(got, want, equal_nan=True) and np.array_equal(np.signbit(got), np.signbit(want))
+    for bad in ([0, 0, 0, 0], [np.nan, 1, 0, 0], [np.inf, 0, 0, 0], [1e-13, 0, 0, 0]):
+        for f in (quat_to_matrix, quat_normalize):
+            with pytest.raises(ValueError, match="finite and non-zero"):
+                f(bad)
+
+
 def test_yaw_of_yaw_rotation_and_composition():
     for yaw in np.linspace(-3.1, 3.1, 13):
         assert np.isclose(yaw_of_matrix(quat_to_matrix(quat_from_yaw(yaw))), yaw)

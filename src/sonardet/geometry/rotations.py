@@ -6,6 +6,8 @@ describe the rotation of a body's canonical frame into the scene frame (active r
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -15,9 +17,23 @@ def wrap_angle(angle_rad):
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def _unit_quat_floats(q) -> tuple[float, float, float, float]:
+    """`quat_normalize` of one quaternion (4,) as Python floats: the same operations in the same order
+    (squares summed left to right, one square root, four divisions, the sign of w), so the same bits,
+    without numpy's per-call cost on four numbers (a detector converts thousands of poses a scene)."""
+    w, x, y, z = (float(v) for v in q)
+    n = math.sqrt(((w * w + x * x) + y * y) + z * z)
+    if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)) or not n >= 1e-12:
+        raise ValueError(f"quaternion must be finite and non-zero, got {[w, x, y, z]}")
+    w, x, y, z = w / n, x / n, y / n, z / n
+    return (-w, -x, -y, -z) if w < 0 else (w, x, y, z)
+
+
 def quat_normalize(q) -> np.ndarray:
     """Return q / |q| with the sign fixed so that w >= 0. Raises on a zero or non-finite quaternion."""
     q = np.asarray(q, dtype=np.float64)
+    if q.shape == (4,):
+        return np.array(_unit_quat_floats(q))
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if not np.all(np.isfinite(q)) or np.any(n < 1e-12):
         raise ValueError(f"quaternion must be finite and non-zero, got {q.tolist()}")
@@ -27,6 +43,12 @@ def quat_normalize(q) -> np.ndarray:
 
 def quat_to_matrix(q) -> np.ndarray:
     """Rotation matrix (..., 3, 3) of unit quaternion(s) q = (w, x, y, z)."""
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape == (4,):  # one quaternion: the same expressions on Python floats
+        w, x, y, z = _unit_quat_floats(q)
+        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
     w, x, y, z = np.moveaxis(quat_normalize(q), -1, 0)
     return np.stack(
         [

@@ -51,6 +51,7 @@ from .registration import (
     ICP_RELATIVE_FITNESS,
     ICP_RELATIVE_RMSE,
     MIN_RIGID_POINTS,
+    IcpPoints,
     IcpResult,
     convergence,
     icp_point_to_point,
@@ -186,22 +187,25 @@ def _class_windows(pts: np.ndarray, lo, hi, m, p: dict, stats: dict):
     return wins[run], side
 
 
-def _best_fit(templates: list, window: np.ndarray, p: dict, stats: dict):
-    """The (IcpResult, template) of the lowest RMSE over the templates registered onto the window
-    points (centroid alignment + point-to-point ICP + refinement), or None when every ICP declines."""
+def _best_fit(templates: list[IcpPoints], window: np.ndarray, p: dict, stats: dict):
+    """The (IcpResult, template points) of the lowest RMSE over the templates (each checked and
+    centred once for all windows) registered onto the window points (centroid alignment +
+    point-to-point ICP + refinement), or None when every ICP declines."""
+    stats["icp_runs"] += len(templates)
+    win = IcpPoints.of(window, p["icp_min_points_n"], p["window_min_thickness_m"])
+    if win.reason:  # every ICP would decline this window: no grid to build
+        stats["icp_declined"] += len(templates)
+        return None
     best = None
     grid = window_grid(window, p)
     for tpl in templates:
-        stats["icp_runs"] += 1
-        res = icp_point_to_point(tpl, window, p["icp_max_corr_m"], p["icp_max_iter"],
-                                 min_points=p["icp_min_points_n"], min_thickness_m=p["window_min_thickness_m"],
-                                 grid=grid)
+        res = icp_point_to_point(tpl, win, p["icp_max_corr_m"], p["icp_max_iter"], grid=grid)
         if res is None:
             stats["icp_declined"] += 1
             continue
-        res = refine_point_to_point(tpl, window, res, p, grid)
+        res = refine_point_to_point(tpl.points, window, res, p, grid)
         if best is None or res.rmse_m < best[0].rmse_m:
-            best = (res, tpl)
+            best = (res, tpl.points)
     return best
 
 
@@ -233,7 +237,8 @@ def _class_hypotheses(cls: str, m, pts: np.ndarray, tree: cKDTree, lo, hi, p: di
     t = time.perf_counter()
     wins, side = _class_windows(pts, lo, hi, m, p, stats[0])
     # The template loses what the seabed removal takes from a scan: its points this low above its base.
-    templates = [thin(v[v[:, 2] > p["ground_min_height_m"]], p["template_voxel_m"])
+    templates = [IcpPoints.of(thin(v[v[:, 2] > p["ground_min_height_m"]], p["template_voxel_m"]),
+                              p["icp_min_points_n"])
                  for v in paper_template(m, p["template_view"])]
     rmse_max = [per_class(r["rmse_max_m"], cls) for r in rankings]
     stats[0]["seconds"]["proposals"] += time.perf_counter() - t

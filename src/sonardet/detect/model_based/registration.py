@@ -114,8 +114,28 @@ def _point_to_plane_tukey(k_m: float):
     return reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=float(k_m)))
 
 
-def icp_point_to_point(template: np.ndarray, window: np.ndarray, max_corr_m: float, max_iter: int,
-                       R0: np.ndarray | None = None, min_points: int = 10,
+@dataclass(frozen=True)
+class IcpPoints:
+    """Points (K,3, any frame, m) prepared once for many `icp_point_to_point` runs: their
+    centroid (3,) and `degenerate_reason` under the checks they were prepared for (None: usable).
+
+    The `paper` variant registers every template view onto every window: checking and centring the
+    same template for each window, and the same window for each template, was a tenth of its time."""
+
+    points: np.ndarray
+    centroid: np.ndarray
+    reason: str | None
+
+    @classmethod
+    def of(cls, points: np.ndarray, min_points: int = 10, min_thickness_m: float = 0.0) -> IcpPoints:
+        """`points` (kept as given) checked by `degenerate_reason(points, min_points,
+        min_thickness_m=...)`, and centred (the centroid only for usable points; NaN otherwise)."""
+        reason = degenerate_reason(points, min_points, min_thickness_m=min_thickness_m)
+        return cls(points, points.mean(0) if reason is None else np.full(3, np.nan), reason)
+
+
+def icp_point_to_point(template: np.ndarray | IcpPoints, window: np.ndarray | IcpPoints, max_corr_m: float,
+                       max_iter: int, R0: np.ndarray | None = None, min_points: int = 10,
                        min_thickness_m: float = 0.0, grid=None) -> IcpResult | None:
     """The source study's registration: template (canonical, (K,3)) onto window points ((M,3), scene frame).
 
@@ -124,15 +144,25 @@ def icp_point_to_point(template: np.ndarray, window: np.ndarray, max_corr_m: flo
     `max_iter` iterations): Open3D's `registration_icp`, or, with `grid` (a `window_icp.WindowGrid` of
     the window points), the same algorithm compiled on that grid. Returns None for degenerate input
     (fewer than `min_points`, collinear or non-finite points; a window thinner than
-    `min_thickness_m`), a non-finite result or one without correspondences.
+    `min_thickness_m`), a non-finite result or one without correspondences. Either input may be an
+    `IcpPoints`, checked and centred once for many runs (with its own `min_points` and
+    `min_thickness_m`, which replace the arguments for it).
     """
-    if degenerate_reason(template, min_points) or \
-            degenerate_reason(window, min_points, min_thickness_m=min_thickness_m):
+    if not isinstance(template, IcpPoints):
+        template = IcpPoints.of(template, min_points)
+        if template.reason:
+            return None
+    elif template.reason:
+        return None
+    if not isinstance(window, IcpPoints):
+        window = IcpPoints.of(window, min_points, min_thickness_m)
+    if window.reason:
         return None
     R0 = np.eye(3) if R0 is None else np.asarray(R0, dtype=np.float64)
     T0 = np.eye(4)
     T0[:3, :3] = R0
-    T0[:3, 3] = window.mean(0) - R0 @ template.mean(0)
+    T0[:3, 3] = window.centroid - R0 @ template.centroid
+    template, window = template.points, window.points
     if grid is not None:
         try:
             T, fitness, rmse, n_corr = window_icp.icp(template, grid, T0, max_corr_m, max_iter,
