@@ -41,23 +41,20 @@ def quat_normalize(q) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
+def _matrix_rows(w, x, y, z) -> tuple:
+    """The rows of the rotation matrix of the unit quaternion (w, x, y, z), for floats or arrays alike."""
+    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))
+
+
 def quat_to_matrix(q) -> np.ndarray:
     """Rotation matrix (..., 3, 3) of unit quaternion(s) q = (w, x, y, z)."""
     q = np.asarray(q, dtype=np.float64)
     if q.shape == (4,):  # one quaternion: the same expressions on Python floats
-        w, x, y, z = _unit_quat_floats(q)
-        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-    w, x, y, z = np.moveaxis(quat_normalize(q), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+        return np.array(_matrix_rows(*_unit_quat_floats(q)))
+    rows = _matrix_rows(*np.moveaxis(quat_normalize(q), -1, 0))
+    return np.stack([np.stack(r, -1) for r in rows], -2)
 
 
 def matrix_to_quat(m) -> np.ndarray:

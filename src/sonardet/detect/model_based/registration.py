@@ -119,8 +119,8 @@ class IcpPoints:
     """Points (K,3, any frame, m) prepared once for many `icp_point_to_point` runs: their
     centroid (3,) and `degenerate_reason` under the checks they were prepared for (None: usable).
 
-    The `paper` variant registers every template view onto every window: checking and centring the
-    same template for each window, and the same window for each template, was a tenth of its time."""
+    The `paper` variant registers every template view onto every window: this checks and centres
+    each template once, not once per window, and each window once, not once per template."""
 
     points: np.ndarray
     centroid: np.ndarray
@@ -150,9 +150,7 @@ def icp_point_to_point(template: np.ndarray | IcpPoints, window: np.ndarray | Ic
     """
     if not isinstance(template, IcpPoints):
         template = IcpPoints.of(template, min_points)
-        if template.reason:
-            return None
-    elif template.reason:
+    if template.reason:
         return None
     if not isinstance(window, IcpPoints):
         window = IcpPoints.of(window, min_points, min_thickness_m)
