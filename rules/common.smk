@@ -193,7 +193,6 @@ def _alternation(names):
     return "|".join(re.escape(n) for n in names) or "(?!)"
 
 
-PER_DATASET_RE = _alternation(n for n, m in METHOD.items() if m.runner == "per_dataset")
 TRAINED_RE = _alternation(TRAINED)
 
 #: One-at-a-time realism ablation: effect -> dataset name; its scenes are the first dev scenes.
@@ -364,11 +363,28 @@ SHARED_RUNS = {
 }
 
 
-def per_scene_alone_re(dataset):
-    """Wildcard regex of the per-scene methods that run alone on `dataset` (not in SHARED_RUNS)."""
-    shared = {n for g in SHARED_RUNS.get(dataset, []) for n in g}
+#: Per-dataset methods that run together on a dataset (sonardet.methods.shared_runs, runner
+#: per_dataset: e.g. every SASA model, each scene read and prepared once): dataset -> groups of two or
+#: more method names; every other per-dataset method has a job of its own.
+SHARED_DATASET_RUNS = {
+    d: [
+        [m.name for m in g]
+        for g in method_registry.shared_runs(
+            [METHOD[n] for n in methods_on(d)], runner="per_dataset"
+        )
+        if len(g) > 1
+    ]
+    for d in DATASETS
+}
+
+
+def alone_re(dataset, runner):
+    """Wildcard regex of the methods of a runner that run alone on `dataset` (not in SHARED_RUNS or
+    SHARED_DATASET_RUNS)."""
+    groups = SHARED_RUNS if runner == "per_scene" else SHARED_DATASET_RUNS
+    shared = {n for g in groups.get(dataset, []) for n in g}
     return _alternation(
-        n for n, m in METHOD.items() if m.runner == "per_scene" and n not in shared
+        n for n, m in METHOD.items() if m.runner == runner and n not in shared
     )
 
 
@@ -392,10 +408,15 @@ def dataset_detect_inputs(dataset):
 
 def detect_inputs(dataset, names):
     """Inputs of a detection job of the methods `names` on a dataset: its scenes and the methods'
-    resources."""
+    resources; with several trained methods their model files are `models` (results/models/{method}/).
+    """
     out = {"scenes": dataset_scene_files(dataset, "npz")}
     for n in names:
         out.update(method_resources(n))
+    trained = [n for n in names if "model" in METHOD[n].resources]
+    if len(trained) > 1:
+        del out["model"]
+        out["models"] = [model_file(n) for n in trained]
     return out
 
 

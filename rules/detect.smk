@@ -26,7 +26,7 @@ for _dataset in DATASETS:
         benchmark:
             f"results/benchmarks/detect_scenes/{{method}}/{_dataset}.tsv"
         wildcard_constraints:
-            method=per_scene_alone_re(_dataset),
+            method=alone_re(_dataset, "per_scene"),
         priority: PRIORITY["detect"]
         conda:
             "../environment.yml"
@@ -93,13 +93,13 @@ for _dataset in DATASETS:
             detections=[
                 detection_file("{method}", _dataset, s) for s in DATASETS[_dataset]
             ],
-            timing=f"results/stats/{{method}}/{_dataset}/inference.json",
+            timing=[dataset_timing_file("{method}", _dataset)],
         log:
             f"results/logs/detect_dataset/{{method}}/{_dataset}.log",
         benchmark:
             f"results/benchmarks/detect_dataset/{{method}}/{_dataset}.tsv"
         wildcard_constraints:
-            method=PER_DATASET_RE,
+            method=alone_re(_dataset, "per_dataset"),
         priority: PRIORITY["detect"]
         conda:
             "../environment.yml"
@@ -108,10 +108,46 @@ for _dataset in DATASETS:
             mem_mb=MEM_MB["detect"],
             runtime=RUNTIME_MIN["detect"],
         params:
-            method=lambda w: METHOD[w.method].to_dict(),
+            methods=lambda w: [METHOD[w.method].to_dict()],
             classes=CLASSES,
         script:
             "../workflow_scripts/detect_dataset.py"
+
+
+# Per-dataset methods that share a job on a dataset (SHARED_DATASET_RUNS, e.g. every SASA model:
+# each scene read and prepared once, the start-up paid once): each method's detections and timing
+# file, each the same as a job of that method alone would write.
+for _dataset, _groups in SHARED_DATASET_RUNS.items():
+    for _k, _names in enumerate(_groups):
+
+        rule:
+            name:
+                f"detect_dataset_{_dataset}_shared{_k}"
+            input:
+                **detect_inputs(_dataset, _names),
+            output:
+                detections=[
+                    detection_file(m, _dataset, s)
+                    for m in _names
+                    for s in DATASETS[_dataset]
+                ],
+                timing=[dataset_timing_file(m, _dataset) for m in _names],
+            log:
+                f"results/logs/detect_dataset/{'+'.join(_names)}/{_dataset}.log",
+            benchmark:
+                f"results/benchmarks/detect_dataset/{'+'.join(_names)}/{_dataset}.tsv"
+            priority: PRIORITY["detect"]
+            conda:
+                "../environment.yml"
+            threads: max(METHOD[m].threads for m in _names)
+            resources:
+                mem_mb=MEM_MB["detect"],
+                runtime=RUNTIME_MIN["detect"],
+            params:
+                methods=[METHOD[m].to_dict() for m in _names],
+                classes=CLASSES,
+            script:
+                "../workflow_scripts/detect_dataset.py"
 
 
 # One training rule per trained method, so that each gets its own priority (train_priority).

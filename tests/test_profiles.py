@@ -111,7 +111,8 @@ def test_slurm_profile_sizes_every_job(workflow_copy):
     scheduling = read_config(REPO / "tests" / "config" / "smoke.yaml")["workflow"]
     jobs = _dry_run(workflow_copy, "slurm", "tests/config/smoke.yaml")
     train = [r for rule, rs in jobs.items() if rule.startswith("train_") for r in rs]
-    assert len(train) >= 4 and "detect_dataset_synthetic" in jobs and "ablation_point" in jobs
+    assert len(train) >= 4 and "ablation_point" in jobs
+    assert any(r.startswith("detect_dataset_synthetic") for r in jobs)  # every SASA model in one job, or one each
     for rule, resources in jobs.items():
         if rule == "all":  # the target: no job of its own
             continue

@@ -51,6 +51,16 @@ def test_methods_that_share_a_run_are_grouped(default_config):
     assert family.share_key(methods.get("model_based_ours", default_config)) is None
     with pytest.raises(ValueError, match="share"):
         family.load_shared([paper, wider], methods.Resources())
+    # Per-dataset methods: every SASA model, domain-randomised too, in one job per dataset.
+    assert [[m.name for m in g] for g in methods.shared_runs(on_test, runner="per_dataset")] == [
+        ["sasa_25", "sasa_50", "sasa_100", "sasa_dr_100"]]
+    on_gpu = methods.get("sasa_50", default_config).with_settings(device="cuda")
+    assert len(methods.shared_runs([on_gpu, methods.get("sasa_100", default_config)], runner="per_dataset")) == 2
+    lone = Method(name="other_100", family="other", runner="per_dataset")  # no share key: a job of its own
+    assert [[m.name for m in g] for g in methods.shared_runs(on_test + [lone], runner="per_dataset")] == [
+        ["sasa_25", "sasa_50", "sasa_100", "sasa_dr_100"], ["other_100"]]
+    with pytest.raises(ValueError, match="runner"):
+        methods.shared_runs(on_test, runner="per_tile")
 
 
 def test_a_method_not_configured_is_still_recognised(default_config):

@@ -11,13 +11,14 @@ import json
 import math
 import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from sonardet.detect.sasa import (ConfigMismatchError, SASADetector, TrainedSASA, detect_points, infer, resolve_params,
-                                  train)
+from sonardet.detect.sasa import (ConfigMismatchError, SASADetector, TrainedSASA, detect_points, infer, infer_models,
+                                  resolve_params, train)
 from sonardet.detect.sasa.box_coder import PointBinResidualCoder
 from sonardet.detect.sasa.data import PaddingWarning, augment, collate, prepare_scene, sample_points
 from sonardet.detect.sasa.losses import assign_points, box_corners, points_in_boxes
@@ -230,6 +231,32 @@ def test_checkpoint_from_other_config_is_refused(tmp_path):
     # a finished checkpoint with the same settings resumes to the end without new steps
     s = train(paths, [], {**params, "num_threads": 1}, tmp_path / "run", resume=True)  # runtime keys may change
     assert s["steps"] == 2
+
+
+def test_models_sharing_a_run_get_their_own_detections(tmp_path, monkeypatch):
+    """`infer_models` (one job for every SASA model on a dataset): each model's detections equal
+    `infer`'s of it alone; each scene is read and prepared once for the models that prepare alike, and
+    once more for a model that prepares otherwise."""
+    from sonardet.detect.sasa import trainer
+
+    paths = [make_scene(tmp_path, "m0", 4, ["reef_ring", "tetrapod_s"]),
+             make_scene(tmp_path, "m1", 5, ["reef_cone", "tetrapod_b"])]
+    params = {**TINY, "epochs": 1, "batch_size": 1}
+    train(paths, [], params, tmp_path / "a", resume=False)
+    train(paths, [], {**params, "seed": 7}, tmp_path / "b", resume=False)
+    alone = [infer(tmp_path / r / "model.pt", paths, {"score_thresh": 0.0}) for r in "ab"]
+    assert all(len(dets[sid]) > 0 for dets, _ in alone for sid in ("m0", "m1"))
+    assert alone[0][0] != alone[1][0]  # two different models
+    models = [TrainedSASA.load(tmp_path / r / "model.pt", {"score_thresh": 0.0}) for r in "ab"]
+    lower = TrainedSASA(models[0].model, {**models[0].params, "ground_height_m": 0.05})
+    prepared = []
+    real = trainer.prepare_scene
+    monkeypatch.setattr(trainer, "prepare_scene", lambda p, *a, **k: prepared.append(Path(p).stem) or real(p, *a, **k))
+    shared = infer_models(models + [lower], paths)
+    assert [dets for dets, _ in shared[:2]] == [dets for dets, _ in alone]
+    assert prepared == ["m0", "m0", "m1", "m1"]  # once for the two models, once for the other ground filter
+    assert all(t["n_scenes"] == 2 and t["s_per_scene"] > 0 and t["device"] == "cpu" for _, t in shared)
+    assert infer_models([], paths) == []
 
 
 def test_resume_continues_identically(tmp_path, monkeypatch):

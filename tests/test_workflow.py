@@ -91,6 +91,13 @@ def test_detections_of_every_method(smoke_run):
     assert not (smoke_run / "results/benchmarks/detect_scenes/model_based_paper/synthetic.tsv").exists()
     assert "shared_run" not in json.loads(
         (smoke_run / f"results/stats/model_based_paper/dev/{dev[0]}.json").read_text())
+    # Every SASA model runs in one job per dataset (each scene read and prepared once), each with its timing file.
+    sasa = ["sasa_25", "sasa_50", "sasa_100", "sasa_dr_100"]
+    for method in sasa:
+        t = json.loads((smoke_run / f"results/stats/{method}/synthetic/inference.json").read_text())
+        assert t["method"] == method and t["shared_run"] == sasa and t["n_scenes"] == 1 and t["s_per_scene"] > 0
+    assert (smoke_run / f"results/benchmarks/detect_dataset/{'+'.join(sasa)}/synthetic.tsv").exists()
+    assert not (smoke_run / "results/benchmarks/detect_dataset/sasa_25/synthetic.tsv").exists()
 
 
 def test_sasa_training_outputs(smoke_run):

@@ -70,16 +70,25 @@ def get(name: str, config: dict) -> Method:
     raise ValueError(f"unknown method {name!r}; configured methods: {known} (families: {', '.join(_FAMILIES)})")
 
 
-def shared_runs(methods: list[Method]) -> list[list[Method]]:
-    """The per-scene methods of `methods` in groups that run together on a dataset (one job, one
-    detector: `MethodFamily.share_key`, `MethodFamily.load_shared`), each group in the order given;
-    groups of one method included. The groups are ordered by their first member."""
+def shared_runs(methods: list[Method], runner: str = "per_scene") -> list[list[Method]]:
+    """The methods of `methods` with the given runner in groups that run together on a dataset (one
+    job), each group in the order given; groups of one method included, ordered by their first member.
+    Per-scene methods group within a family (`MethodFamily.share_key`, one detector:
+    `MethodFamily.load_shared`); per-dataset ones by `MethodFamily.dataset_share_key` across
+    families (run by `MethodFamily.detect_datasets` of the first member's family)."""
+    if runner not in RUNNERS:
+        raise ValueError(f"runner {runner!r} is not one of {RUNNERS}")
     groups: dict = {}
     for m in methods:
-        if m.runner != "per_scene":
+        if m.runner != runner:
             continue
-        key = _FAMILIES[m.family].share_key(m) if m.family in _FAMILIES else None
-        groups.setdefault((m.family, key) if key is not None else ("", m.name), []).append(m)
+        fam = _FAMILIES.get(m.family)
+        if runner == "per_scene":
+            key = fam.share_key(m) if fam is not None else None
+            key = (m.family, key) if key is not None else None
+        else:
+            key = fam.dataset_share_key(m) if fam is not None else None
+        groups.setdefault(key if key is not None else ("", m.name), []).append(m)
     return list(groups.values())
 
 

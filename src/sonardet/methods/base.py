@@ -153,6 +153,19 @@ class MethodFamily:
         detector in turn."""
         return _InTurn([self.load(m, resources) for m in methods])
 
+    def dataset_share_key(self, method: Method) -> str | None:
+        """Per-dataset methods, of any family, with the same key (not None) run on a dataset in one job
+        through :meth:`detect_datasets` of the first one's family, which does the work they have in
+        common once (e.g. reading and preparing each scene for several trained models): the key names
+        the implementation that runs them. Default None: a job per method."""
+        return None
+
+    def detect_datasets(self, methods: list[Method], resources: list[Resources],
+                        scene_paths) -> list[tuple[dict, dict]]:
+        """:meth:`detect_dataset` of each method (with its own Resources), in order, each result the
+        same as the method's own. Default: one after the other."""
+        return [self.detect_dataset(m, r, scene_paths) for m, r in zip(methods, resources)]
+
     def detect_dataset(self, method: Method, resources: Resources, scene_paths) -> tuple[dict, dict]:
         """Detections of every scene file (scene id -> list) and a timing dict {n_scenes,
         s_per_scene, s_max}. Default: load once, then the detector on each scene's soundings."""

@@ -109,11 +109,21 @@ class Sasa(MethodFamily):
         return TrainedSASA.load(resources.model_path, self._inference_params(method, resources),
                                 self._device(method, resources))
 
-    def detect_dataset(self, method: Method, resources: Resources, scene_paths) -> tuple[dict, dict]:
-        from ..detect.sasa import infer
+    def dataset_share_key(self, method: Method) -> str | None:
+        """Every SASA model (any training fraction, seed or domain randomisation) on one device: one job
+        per dataset reads and prepares each scene once for all of them (`infer_models`)."""
+        return f"sasa-inference:{method.settings['device']}"
 
-        return infer(resources.model_path, list(scene_paths), params=self._inference_params(method, resources),
-                     device=self._device(method, resources))
+    def detect_dataset(self, method: Method, resources: Resources, scene_paths) -> tuple[dict, dict]:
+        return self.detect_datasets([method], [resources], scene_paths)[0]
+
+    def detect_datasets(self, methods: list[Method], resources: list[Resources],
+                        scene_paths) -> list[tuple[dict, dict]]:
+        from ..detect.sasa import TrainedSASA, infer_models
+
+        models = [TrainedSASA.load(r.model_path, self._inference_params(m, r), self._device(m, r))
+                  for m, r in zip(methods, resources)]
+        return infer_models(models, list(scene_paths))
 
     def train(self, method: Method, train_paths, val_paths, out_dir, resources: Resources) -> dict:
         from ..detect.sasa import ConfigMismatchError, train

@@ -57,7 +57,8 @@ __all__ = ["PROCESS_FILE", "blocking_chain", "critical_path", "job_method", "met
 #: by the Snakefile's onsuccess / onerror handlers.
 PROCESS_FILE = "snakemake_process.json"
 #: Rules whose benchmark path names the method(s) right after the rule: train/{method},
-#: detect_dataset/{method}/{dataset}, detect_scenes/{method}[+{method}...]/{dataset}, evaluate/{method}/{dataset}.
+#: detect_dataset/{method}[+{method}...]/{dataset}, detect_scenes/{method}[+{method}...]/{dataset},
+#: evaluate/{method}/{dataset}.
 METHOD_RULES = ("train", "detect_dataset", "detect_scenes", "evaluate")
 #: Rules that simulate scenes (the `(scenes)` group of `job_method`).
 SCENE_RULES = ("simulate_scene", "simulate_scenes")

@@ -4,17 +4,19 @@ Layout as OpenPCDet: :mod:`.backbone` (PointNet++ SA layers with D-FPS / S-FPS),
 vote head), :mod:`.box_coder` (symmetry-aware bin/residual coder), :mod:`.losses`, :mod:`.model` (the
 detector, post-processing), :mod:`.data` (ground filter, sampling, augmentation), :mod:`.config`
 (``DEFAULTS`` / ``STUDY`` hyper-parameters), :mod:`.trainer` (``train``, ``TrainedSASA`` (a saved model
-loaded once, called per point cloud), ``infer``), :mod:`.ops` (point
-operators). Reference: blakechen97/SASA. The network modules (torch) are imported on first use.
+loaded once, called per point cloud), ``infer``, ``infer_models`` (several models, each scene
+prepared once)), :mod:`.ops` (point operators). Reference: blakechen97/SASA. The network modules
+(torch) are imported on first use.
 """
 
 from .config import DEFAULTS, PRESETS, STUDY, resolve_params
 
-__all__ = ["DEFAULTS", "PRESETS", "STUDY", "resolve_params", "SASADetector", "TrainedSASA", "train", "infer", "detect_points",
-           "read_model", "ConfigMismatchError"]
+__all__ = ["DEFAULTS", "PRESETS", "STUDY", "resolve_params", "SASADetector", "TrainedSASA", "train", "infer",
+           "infer_models", "detect_points", "read_model", "ConfigMismatchError"]
 
 _LAZY = {"SASADetector": "model", "TrainedSASA": "trainer", "train": "trainer", "infer": "trainer",
-         "detect_points": "trainer", "read_model": "trainer", "ConfigMismatchError": "trainer"}
+         "infer_models": "trainer", "detect_points": "trainer", "read_model": "trainer",
+         "ConfigMismatchError": "trainer"}
 
 
 def __getattr__(name):

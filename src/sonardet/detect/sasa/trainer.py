@@ -64,7 +64,7 @@ from .model import SASADetector
 
 log = logging.getLogger(__name__)
 
-__all__ = ["train", "infer", "detect_points", "read_model", "resolve_device", "ConfigMismatchError",
+__all__ = ["train", "infer", "infer_models", "detect_points", "read_model", "resolve_device", "ConfigMismatchError",
            "TrainedSASA", "evaluate_scenes", "peak_memory_mb"]
 
 CHECKPOINT_FORMAT = "sonardet-sasa"
@@ -319,23 +319,49 @@ def infer(model_path, scene_npz_paths, params: dict | None = None, device=None,
         s_per_scene (mean seconds per scene: reading, preparing and detecting; None without scenes),
         device, peak_rss_mb (and peak_cuda_mb on CUDA)}.
     """
-    sasa = TrainedSASA.load(model_path, params, device)
-    show = sasa.params["progress"] if progress is None else progress
-    out, times = {}, []
+    return infer_models([TrainedSASA.load(model_path, params, device)], scene_npz_paths, progress)[0]
+
+
+def _preparation_key(params: dict) -> tuple:
+    """The parameters :func:`data.prepare_scene` reads (without labels): models that agree on them
+    can share a scene's preparation."""
+    return float(params["ground_cell_m"]), bool(params["ground_filter"]), float(params["ground_height_m"])
+
+
+def infer_models(models: list[TrainedSASA], scene_npz_paths, progress: bool | None = None) -> list[tuple[dict, dict]]:
+    """:func:`infer` for several loaded models on the same scene files: each scene is read and
+    prepared once for all models that prepare alike (`_preparation_key`), then detected by each in
+    turn. Each model's detections are those :func:`infer` gives it alone (the same prepared points,
+    the same seeded sample); its ``s_per_scene`` counts the scene's reading and preparation as its own
+    (what a run of it alone would take), so the models' seconds do not add up to the call's.
+
+    Returns one (detections, timing) per model, in order (see :func:`infer`).
+    """
+    if not models:
+        return []
+    show = models[0].params["progress"] if progress is None else progress
     try:
         from tqdm import tqdm
     except ImportError:  # pragma: no cover - tqdm is a dependency
         tqdm = None
     it = list(scene_npz_paths)
     bar = tqdm(it, desc="sasa infer", disable=not show) if tqdm else it
+    outs = [{} for _ in models]
+    times = [[] for _ in models]
     for p in bar:
-        t0 = time.perf_counter()
-        scene_id, dets = sasa.detect_file(p)
-        out[scene_id] = dets
-        times.append(time.perf_counter() - t0)
-    timing = {"n_scenes": len(times), "s_per_scene": float(np.mean(times)) if times else None,
-              "device": str(sasa.device), **peak_memory_mb(sasa.device)}
-    return out, timing
+        prepared = {}  # preparation key -> (prepared scene, seconds)
+        for k, sasa in enumerate(models):
+            key = _preparation_key(sasa.params)
+            if key not in prepared:
+                t0 = time.perf_counter()
+                prepared[key] = (prepare_scene(p, sasa.params, with_labels=False), time.perf_counter() - t0)
+            scene, prep_s = prepared[key]
+            t0 = time.perf_counter()
+            outs[k][scene.scene_id] = sasa.detect_scene(scene)
+            times[k].append(prep_s + time.perf_counter() - t0)
+    return [(out, {"n_scenes": len(ts), "s_per_scene": float(np.mean(ts)) if ts else None,
+                   "device": str(sasa.device), **peak_memory_mb(sasa.device)})
+            for sasa, out, ts in zip(models, outs, times)]
 
 
 def detect_points(model_path, xyz: np.ndarray, params: dict | None = None, device=None, scene_id: str = "points"):
