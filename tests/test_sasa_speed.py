@@ -312,3 +312,45 @@ def test_fused_kernels_give_the_same_bits_on_one_thread_and_in_parallel():
     np.testing.assert_allclose(dgamma, sg, rtol=1e-5)  # xhat in float32, as the forward
     np.testing.assert_allclose(dh, want, rtol=1e-4, atol=1e-6 * np.abs(want).max())
     assert not kernels.run_parallel(kernels.PARALLEL_MIN_ELEMENTS - 1)
+
+
+def test_fused_batch_norm_backward_is_its_row_order_formulation_bit_for_bit():
+    """The backward kernel computes exactly this: per chunk of rows, float64 sums of the masked
+    gradient and of its product with the float32 xhat, row after row; then dh in float32 operations.
+    Row by row in NumPy (each step elementwise, so the same IEEE operations in the same order) the
+    result must be the same bits, signs of zeros included: a rewrite of the kernel for speed (e.g. its
+    reads of gy taken out of the mask's condition) may not change a training."""
+    from sonardet.detect.sasa.ops import kernels
+
+    rng = np.random.default_rng(11)
+    R, C, nchunks = 1_003, 13, 4
+    h = (rng.standard_normal((R, C)) * 2 + 0.5).astype(np.float32)
+    gy = rng.standard_normal((R, C)).astype(np.float32)
+    gy[rng.random((R, C)) < 0.05] = -0.0
+    gy[:, 3] = 0.0  # a channel whose sums are zeros
+    wn = rng.integers(1, 6, R).astype(np.float32)
+    wn /= wn.sum()
+    gamma = rng.uniform(-1.5, 1.5, C).astype(np.float32)
+    beta = rng.uniform(-0.5, 0.5, C).astype(np.float32)
+    _, mean, var = kernels.weighted_bn_relu_forward(h, wn, gamma, beta, 1e-5, nchunks, False)
+    invstd = 1.0 / np.sqrt(var + 1e-5)
+    dh, dgamma, dbeta = kernels.weighted_bn_relu_backward(gy, h, wn, mean, var, invstd, gamma, beta, 1e-5,
+                                                          nchunks, False)
+    scale, offset = kernels._bn_affine(mean, var, gamma, beta, 1e-5)
+    mean32, inv32 = mean.astype(np.float32), invstd.astype(np.float32)
+    sb, sg = np.zeros((nchunks, C)), np.zeros((nchunks, C))
+    for k in range(nchunks):
+        for i in range(k * R // nchunks, (k + 1) * R // nchunks):
+            g = np.where(h[i] * scale + offset > 0, gy[i].astype(np.float64), 0.0)
+            sb[k] += g
+            sg[k] += g * ((h[i] - mean32) * inv32).astype(np.float64)
+    want_db, want_dg = sb.sum(axis=0), sg.sum(axis=0)
+    a = (gamma.astype(np.float64) * invstd).astype(np.float32)
+    db32, dg32 = want_db.astype(np.float32), want_dg.astype(np.float32)
+    want_dh = np.empty_like(h)
+    for i in range(R):
+        g = np.where(h[i] * scale + offset > 0, gy[i], np.float32(0.0))
+        xhat = (h[i] - mean32) * inv32
+        want_dh[i] = a * (g - wn[i] * (db32 + xhat * dg32))
+    assert dbeta.tobytes() == want_db.tobytes() and dgamma.tobytes() == want_dg.tobytes()
+    assert dh.tobytes() == want_dh.tobytes()

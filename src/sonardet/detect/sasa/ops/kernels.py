@@ -444,9 +444,11 @@ def _bn_grad_sums_rows(gy, h, scale, offset, mean32, inv32, sb, sg, lo, hi):
     C = h.shape[1]
     for i in range(lo, hi):
         for c in range(C):
-            # Branch-free (adds 0 where the ReLU is off: the same sums), so the loop vectorises.
+            # Branch-free (adds 0 where the ReLU is off: the same sums), so the loop vectorises; gy is
+            # read whatever the mask (a read under the condition becomes a masked or scalar load).
             x = h[i, c]
-            g = np.float64(gy[i, c]) if x * scale[c] + offset[c] > 0 else 0.0
+            gv = np.float64(gy[i, c])
+            g = gv if x * scale[c] + offset[c] > 0 else 0.0
             sb[c] += g
             sg[c] += g * np.float64((x - mean32[c]) * inv32[c])
 
@@ -458,7 +460,8 @@ def _bn_grad_rows(gy, h, wn, scale, offset, mean32, inv32, a, db32, dg32, dh, lo
         w = wn[i]
         for c in range(C):
             x = h[i, c]
-            g = gy[i, c] if x * scale[c] + offset[c] > 0 else np.float32(0.0)
+            gv = gy[i, c]  # read whatever the mask, as in _bn_grad_sums_rows
+            g = gv if x * scale[c] + offset[c] > 0 else np.float32(0.0)
             xhat = (x - mean32[c]) * inv32[c]
             dh[i, c] = a[c] * (g - w * (db32[c] + xhat * dg32[c]))
 
