@@ -564,8 +564,9 @@ def _segment_max_grad_rows(g, out, h, offsets, gi, lo, hi):
         for i in range(a, b):
             for c in range(C):  # branch-free, so that the loop vectorises; every element written
                 v = h[i, c]
+                gv = g[s, c]  # read whatever the test (as in _bn_grad_sums_rows)
                 hit = np.isnan(v) or v == out[s, c]
-                gi[i, c] = g[s, c] if hit else zero
+                gi[i, c] = gv if hit else zero
                 cnt[c] += hit
         if cnt.max() >= 2:  # ties in some channel
             for i in range(a, b):
