@@ -176,17 +176,26 @@ def _symmetry(params: dict):
     return sym, periods
 
 
-def evaluate_scenes(dets: dict, scene_paths, params: dict, dist_thresholds_m=(0.5, 1.0, 2.0, 4.0),
-                    headline_m: float = 0.5) -> dict:
-    """nuScenes-style metrics (sonardet.eval.evaluate) of ``dets`` against the scenes' JSON labels."""
-    from ...eval.evaluate import evaluate, metrics_for_json
+def ground_truth(scene_paths, classes) -> dict:
+    """The scenes' labelled objects of `classes` (scene JSON), scene id -> list (`sonardet.eval.evaluate`'s
+    `gt`): read once per training, not once per development evaluation."""
     from ...io.annotations import read_scene
     from .data import scene_paths as _paths
 
     gt = {}
     for p in scene_paths:
         doc = read_scene(_paths(p)[1], classes=None)
-        gt[doc["scene"]] = [o for o in doc["objects"] if o["cls"] in params["classes"]]
+        gt[doc["scene"]] = [o for o in doc["objects"] if o["cls"] in classes]
+    return gt
+
+
+def evaluate_scenes(dets: dict, scene_paths, params: dict, dist_thresholds_m=(0.5, 1.0, 2.0, 4.0),
+                    headline_m: float = 0.5, gt: dict | None = None) -> dict:
+    """nuScenes-style metrics (sonardet.eval.evaluate) of ``dets`` against the scenes' JSON labels
+    (``gt``: those labels already read by :func:`ground_truth`; ``scene_paths`` is then not read)."""
+    from ...eval.evaluate import evaluate, metrics_for_json
+
+    gt = ground_truth(scene_paths, params["classes"]) if gt is None else gt
     sym, periods = _symmetry(params)
     res = evaluate(gt, {k: v for k, v in dets.items() if k in gt}, params["classes"], list(dist_thresholds_m),
                    headline_m, symmetric_classes=sym, yaw_periods_rad=periods)
@@ -469,10 +478,14 @@ def _train_epoch(model, opt, sched, scenes: list, params: dict, epoch: int, devi
     return sums
 
 
-def _validate(model, val_scenes: list, val_paths: list[str], params: dict, device) -> dict:
-    """Validation metrics (`evaluate_scenes`) of the model on the validation scenes."""
+def _validate(model, val_scenes: list, val_gt: dict, params: dict, device, headline_only: bool = False) -> dict:
+    """Validation metrics (`evaluate_scenes`) of the model on the validation scenes (labels `val_gt`);
+    ``headline_only``: at the headline distance alone (the same `mAP_headline`: each distance is
+    matched on its own), what a development evaluation during training needs."""
     dets = {s.scene_id: _detect_prepared(model, s, params, device) for s in val_scenes}
-    return evaluate_scenes(dets, val_paths, params)
+    if headline_only:
+        return evaluate_scenes(dets, [], params, dist_thresholds_m=(0.5,), headline_m=0.5, gt=val_gt)
+    return evaluate_scenes(dets, [], params, gt=val_gt)
 
 
 def _training_summary(params: dict, device, scenes: list, val_scenes: list, train_ids: list[str],
@@ -520,7 +533,7 @@ def _progress_bar(params: dict, total_steps: int, done_steps: int, n_scenes: int
                 disable=not params["progress"])
 
 
-def _evaluate_epoch(model, val_scenes, val_paths, params: dict, device, run: _Progress, row: dict,
+def _evaluate_epoch(model, val_scenes, val_gt: dict, params: dict, device, run: _Progress, row: dict,
                     epochs: int) -> None:
     """Every `val_every_epochs` epochs (and after the last): the dev mAP into `row`, the best model
     kept, and early stopping decided (`early_stop_patience` evaluations without a dev mAP better by
@@ -529,7 +542,7 @@ def _evaluate_epoch(model, val_scenes, val_paths, params: dict, device, run: _Pr
     epoch = int(row["epoch"])
     if not (val_scenes and every and (epoch % every == 0 or epoch == epochs)):
         return
-    m = _validate(model, val_scenes, val_paths, params, device)["mAP_headline"]
+    m = _validate(model, val_scenes, val_gt, params, device, headline_only=True)["mAP_headline"]
     row["val_mAP"] = m
     if run.best_map is None or m > run.best_map + float(params["early_stop_min_delta"]):
         run.best_epoch, run.best_map, run.bad_evals = epoch, float(m), 0
@@ -554,7 +567,7 @@ def _checkpoint(settings: dict, params: dict, model, opt, sched, epoch: int, run
             "stopped_epoch": run.stopped_epoch}
 
 
-def _final_validation(model, val_scenes: list, val_paths: list[str], params: dict, device, run: _Progress,
+def _final_validation(model, val_scenes: list, val_gt: dict, params: dict, device, run: _Progress,
                       out_dir: Path):
     """Validation of the kept model (the best on the dev scenes, else the last epoch's): (metrics for
     train.json, inference seconds per scene), both None without validation scenes. Without periodic
@@ -562,7 +575,7 @@ def _final_validation(model, val_scenes: list, val_paths: list[str], params: dic
     if not val_scenes:
         return None, None
     t0 = time.perf_counter()
-    m = _validate(model, val_scenes, val_paths, params, device)
+    m = _validate(model, val_scenes, val_gt, params, device)
     val_s = (time.perf_counter() - t0) / len(val_scenes)
     val = {"mAP_headline": m["mAP_headline"], "mAP": m["mAP"],
            "AP_headline": {c: m["per_class"][c]["AP"][repr(0.5)] for c in params["classes"]}}
@@ -600,6 +613,7 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
     ckpt_path = out_dir / "checkpoint.pt"
     ckpt = _checkpoint_to_resume(ckpt_path, settings, resume)
     scenes, val_scenes, prep_s = _prepare_training_scenes(train_paths, val_paths, params)
+    val_gt = ground_truth(val_paths, params["classes"])
 
     torch.manual_seed(int(params["seed"]))
     model = SASADetector(params).to(device)
@@ -620,7 +634,7 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
         run.train_s += ep_s
         row = {"epoch": epoch + 1, **{k: v / steps_per_epoch for k, v in sums.items()},
                "lr": sched.get_last_lr()[0], "epoch_s": ep_s}
-        _evaluate_epoch(model, val_scenes, val_paths, params, device, run, row, epochs)
+        _evaluate_epoch(model, val_scenes, val_gt, params, device, run, row, epochs)
         run.history.append(row)
         log.info("epoch %d/%d: loss %.4f, %.1f s (%.2f s/step)%s", epoch + 1, epochs, row.get("loss", float("nan")),
                  ep_s, ep_s / steps_per_epoch, f", dev mAP {row['val_mAP']:.3f}" if "val_mAP" in row else "")
@@ -634,7 +648,7 @@ def train(train_scene_paths, val_scene_paths, params: dict | None, out_dir, devi
         model.load_state_dict(run.best_state)
     if bar is not None:
         bar.close()
-    val, val_s = _final_validation(model, val_scenes, val_paths, params, device, run, out_dir)
+    val, val_s = _final_validation(model, val_scenes, val_gt, params, device, run, out_dir)
     summary = _training_summary(params, device, scenes, val_scenes, train_ids, run, prep_s, val_s, val,
                                 sum(p.numel() for p in model.parameters()))
     with atomic_outputs([out_dir / "model.pt", out_dir / "loss.csv", out_dir / "train.json"]) as (pt, loss, js):
