@@ -29,6 +29,7 @@ import resource
 import time
 from contextlib import contextmanager
 
+import numpy as np
 import torch
 
 from sonardet.detect.sasa.ops import (
@@ -168,6 +169,17 @@ def weighted_bn_rows(add, repeat: int) -> None:
 
         add(f"weighted BN+ReLU fwd [{name}]", f"R={rows} C={ch}", timeit(fwd, torch.device("cpu"), repeat))
         add(f"weighted BN+ReLU fwd+bwd [{name}]", f"R={rows} C={ch}", timeit(fwd_bwd, torch.device("cpu"), repeat))
+    # The backward kernel alone (no autograd, no forward), as a training step calls it.
+    from sonardet.detect.sasa.ops import kernels
+
+    nchunks, parallel = kernels.parallel_chunks(torch.get_num_threads()), kernels.run_parallel(rows * ch)
+    hn, wnn, gn, bn = h.detach().numpy(), wn.numpy(), gamma.detach().numpy(), beta.detach().numpy()
+    _, mean, var = kernels.weighted_bn_relu_forward(hn, wnn, gn, bn, 1e-5, nchunks, parallel)
+    invstd = 1.0 / np.sqrt(var + 1e-5)
+    upn = up.numpy()
+    add("weighted BN+ReLU bwd [fused kernel]", f"R={rows} C={ch}",
+        timeit(lambda: kernels.weighted_bn_relu_backward(upn, hn, wnn, mean, var, invstd, gn, bn, 1e-5, nchunks,
+                                                         parallel), torch.device("cpu"), repeat))
 
 
 def segment_max_rows(add, repeat: int) -> None:
@@ -194,6 +206,17 @@ def segment_max_rows(add, repeat: int) -> None:
 
         add(f"segment max fwd [{name}]", f"R={rows} C={ch}", timeit(fwd, torch.device("cpu"), repeat))
         add(f"segment max fwd+bwd [{name}]", f"R={rows} C={ch}", timeit(fwd_bwd, torch.device("cpu"), repeat))
+    # The backward kernel alone (no autograd, no forward), as a training step calls it.
+    from sonardet.detect.sasa.ops import kernels
+
+    nchunks, parallel = kernels.parallel_chunks(torch.get_num_threads()), kernels.run_parallel(rows * ch)
+    offsets = np.concatenate([[0], np.cumsum(lengths.numpy())]).astype(np.int64)
+    hn = h.detach().numpy()
+    out = kernels.segment_max_forward(hn, offsets, nchunks, parallel)
+    upn = up.numpy()
+    add("segment max bwd [fused kernel]", f"R={rows} C={ch}",
+        timeit(lambda: kernels.segment_max_backward(upn, out, hn, offsets, nchunks, parallel), torch.device("cpu"),
+               repeat))
 
 
 def row_adder(device: torch.device, rows: list[dict]):

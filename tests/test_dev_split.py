@@ -75,3 +75,7 @@ def test_only_the_final_evaluation_reads_test_scenes(tmp_path):
     readers = {r for r, inputs in jobs if test_files & set(inputs)}
     # the check sees the test scenes being read at all (ours alone; paper with the ladder's step)
     assert {"detect_scenes_synthetic", "detect_scenes_synthetic_shared0", "evaluate"} <= readers
+    # Every SASA model in one job per test set and on dev; a shared job runs only methods a target
+    # reads: on the realism ablation's effect sets that is sasa_100 alone, so no shared job there.
+    assert {"detect_dataset_synthetic_shared0", "detect_dataset_dev_shared0"} <= readers | rules
+    assert "detect_dataset_realism_burial" in rules and "detect_dataset_realism_burial_shared0" not in rules
