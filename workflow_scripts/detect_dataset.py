@@ -25,20 +25,23 @@ with job(snakemake, "detect_dataset") as log:  # noqa: F821
     results = family.detect_datasets(run, [job_resources(smk, m) for m in run], scenes)
     if len(run) > 1:
         log.info("one run for %s (each scene read and prepared once)", ", ".join(names))
-    staged_texts = []
-    # The rule lists the detection outputs method by method, each in the order of the scenes.
+    texts = []
+    # The rule lists the detection outputs method by method (results/detections/{method}/...), each in
+    # the order of the scenes.
     for k, (method, (dets, timing)) in enumerate(zip(run, results)):
         mine = det_paths[k * n:(k + 1) * n]
+        if any(Path(p).parent.parent.name != method.name for p in mine):
+            raise RuntimeError(f"{'+'.join(names)}: the detection outputs are not listed method by method")
         missing = sorted({Path(p).stem for p in mine} - set(dets))
         if missing:
             raise RuntimeError(f"{method.name} returned no result for scene(s) {missing}")
         if len(run) > 1:
             timing = {**timing, "shared_run": names}
-        staged_texts.append((mine, dets, json.dumps({"method": method.name, **timing}, indent=1) + "\n"))
+        texts.append(json.dumps({"method": method.name, **timing}, indent=1) + "\n")
         log.info("%s: %d scenes, %d detections, %.2f s per scene", method.name, n,
                  sum(len(d) for d in dets.values()), timing.get("s_per_scene") or 0.0)
     with atomic_outputs(det_paths + timing_paths) as staged:
-        for k, (mine, dets, text) in enumerate(staged_texts):
+        for k, (method, (dets, _)) in enumerate(zip(run, results)):
             for path in staged[k * n:(k + 1) * n]:
-                write_detections(path, path.stem, run[k].name, dets[path.stem], smk.params.classes)
-            atomic_write_text(staged[len(det_paths) + k], text)
+                write_detections(path, path.stem, method.name, dets[path.stem], smk.params.classes)
+            atomic_write_text(staged[len(det_paths) + k], texts[k])
