@@ -423,7 +423,7 @@ def dataset_detect_inputs(dataset):
 
 def detect_inputs(dataset, names):
     """Inputs of a detection job of the methods `names` on a dataset: its scenes and the methods'
-    resources; with several trained methods their model files are `models` (results/models/{method}/).
+    resources; with several trained methods each one's model file is `model_{method}`.
     """
     out = {"scenes": dataset_scene_files(dataset, "npz")}
     for n in names:
@@ -431,7 +431,7 @@ def detect_inputs(dataset, names):
     trained = [n for n in names if "model" in METHOD[n].resources]
     if len(trained) > 1:
         del out["model"]
-        out["models"] = [model_file(n) for n in trained]
+        out.update({f"model_{n}": model_file(n) for n in trained})
     return out
 
 

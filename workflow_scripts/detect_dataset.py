@@ -26,12 +26,9 @@ with job(snakemake, "detect_dataset") as log:  # noqa: F821
     if len(run) > 1:
         log.info("one run for %s (each scene read and prepared once)", ", ".join(names))
     texts = []
-    # The rule lists the detection outputs method by method (results/detections/{method}/...), each in
-    # the order of the scenes.
+    # The rule lists the detection outputs method by method, each in the order of the scenes.
     for k, (method, (dets, timing)) in enumerate(zip(run, results)):
         mine = det_paths[k * n:(k + 1) * n]
-        if any(Path(p).parent.parent.name != method.name for p in mine):
-            raise RuntimeError(f"{'+'.join(names)}: the detection outputs are not listed method by method")
         missing = sorted({Path(p).stem for p in mine} - set(dets))
         if missing:
             raise RuntimeError(f"{method.name} returned no result for scene(s) {missing}")

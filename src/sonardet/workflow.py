@@ -87,9 +87,8 @@ def job_method(smk) -> Method:
 
 def job_resources(smk, method: Method | None = None) -> Resources:
     """A job's Resources from its named inputs: `meta` (object JSONs, meshes beside them) -> object
-    models, `templates` -> template scans, `model` -> the trained model file, or in a job of several
-    trained methods `models` -> the one in `method`'s folder (results/models/{method}/); threads from
-    the job."""
+    models, `templates` -> template scans, `model` -> the trained model file (in a job of several
+    trained methods `model_{method}`, that of `method`); threads from the job."""
     from .io.templates import read_templates
     from .methods import Resources
     from .objects import read_object
@@ -99,12 +98,8 @@ def job_resources(smk, method: Method | None = None) -> Resources:
     objects = {Path(p).stem: read_object(p) for p in inp.meta} if "meta" in names else None
     templates = {Path(p).stem: read_templates(p) for p in inp.templates} if "templates" in names else None
     model = Path(inp.model) if "model" in names else None
-    if "models" in names and method is not None:
-        mine = [Path(p) for p in inp.models if Path(p).parent.name == method.name]
-        if len(mine) != 1:
-            raise RuntimeError(f"{method.name}: {len(mine)} of the job's model files ({list(inp.models)}) are in "
-                               f"its folder; expected one")
-        model = mine[0]
+    if method is not None and f"model_{method.name}" in names:
+        model = Path(getattr(inp, f"model_{method.name}"))
     device = (method.settings.get("device", "auto") if method is not None else "auto")
     return Resources(objects=objects, templates=templates, model_path=model, device=device,
                      threads=_threads(smk))
