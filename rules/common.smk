@@ -363,36 +363,6 @@ SHARED_RUNS = {
 }
 
 
-def default_methods_on(dataset):
-    """The methods whose detections on `dataset` the default target reads: every method on the sets
-    it evaluates; on a development set not evaluated by default, those of the ablation reference (the
-    main methods, on dev) and of the realism ablation (on dev, realism_dev and the effect sets).
-    """
-    if dataset in DEFAULT_EVAL_DATASETS:
-        return methods_on(dataset)
-    needed = set(METHODS) if ABLATION and dataset == "dev" else set()
-    if REALISM_EFFECTS and dataset in {"dev", "realism_dev", *REALISM_EFFECTS.values()}:
-        needed |= set(config["realism_ablation"]["methods"])
-    return [m for m in methods_on(dataset) if m in needed]
-
-
-#: Per-dataset methods that run together on a dataset (sonardet.methods.shared_runs, runner
-#: per_dataset: e.g. every SASA model, each scene read and prepared once): dataset -> groups of two or
-#: more method names, among the methods the default target reads there (a shared job runs all of its
-#: group, so a method no target asks for would be made for nothing); every other per-dataset method
-#: (e.g. on the development sets for the `development` target) has a job of its own.
-SHARED_DATASET_RUNS = {
-    d: [
-        [m.name for m in g]
-        for g in method_registry.shared_runs(
-            [METHOD[n] for n in default_methods_on(d)], runner="per_dataset"
-        )
-        if len(g) > 1
-    ]
-    for d in DATASETS
-}
-
-
 def alone_re(dataset, runner):
     """Wildcard regex of the methods of a runner that run alone on `dataset` (not in SHARED_RUNS or
     SHARED_DATASET_RUNS)."""
@@ -590,6 +560,41 @@ def realism_ablation_effects():
         }
         for effect, d in sets.items()
     }
+
+
+def default_methods_on(dataset):
+    """The methods whose detections on `dataset` the default target reads: every method on the sets
+    it evaluates; on a development set not evaluated by default, those the ablation reference
+    (`ablation_reference_methods`, on dev) and the realism ablation (`realism_ablation_effects`)
+    read there."""
+    if dataset in DEFAULT_EVAL_DATASETS:
+        return methods_on(dataset)
+    needed = (
+        {e["method"]["name"] for e in ablation_reference_methods()}
+        if ABLATION and dataset == "dev"
+        else set()
+    )
+    for effect in realism_ablation_effects().values():
+        if effect["dataset"] == dataset:
+            needed |= set(effect["detections"])
+    return [m for m in methods_on(dataset) if m in needed]
+
+
+#: Per-dataset methods that run together on a dataset (sonardet.methods.shared_runs, runner
+#: per_dataset: e.g. every SASA model, each scene read and prepared once): dataset -> groups of two or
+#: more method names, among the methods the default target reads there (a shared job runs all of its
+#: group, so a method no target asks for would be made for nothing); every other per-dataset method
+#: (e.g. on the development sets for the `development` target) has a job of its own.
+SHARED_DATASET_RUNS = {
+    d: [
+        [m.name for m in g]
+        for g in method_registry.shared_runs(
+            [METHOD[n] for n in default_methods_on(d)], runner="per_dataset"
+        )
+        if len(g) > 1
+    ]
+    for d in DATASETS
+}
 
 
 def _caption(name):

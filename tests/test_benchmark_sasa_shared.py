@@ -27,8 +27,8 @@ def test_one_process_per_model_and_one_for_all_give_the_same_detections(tmp_path
     (results / "splits" / "dev.txt").write_text("s0100\ns0101\n")
     models = []
     for seed in (1, 2):
-        train(paths, [], {**TINY, "epochs": 1, "batch_size": 1, "seed": seed, "score_thresh": 0.0}, tmp_path / f"m{seed}",
-              resume=False)
+        train(paths, [], {**TINY, "epochs": 1, "batch_size": 1, "seed": seed, "score_thresh": 0.0},
+              tmp_path / f"m{seed}", resume=False)
         models.append(str(tmp_path / f"m{seed}" / "model.pt"))
     assert main(["--results", str(results), "--models", *models, "--repeat", "1", "--scenes", "2"]) == 0
     out = capsys.readouterr().out
