@@ -28,6 +28,7 @@ import multiprocessing as mp
 import resource
 import time
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -219,6 +220,42 @@ def segment_max_rows(add, repeat: int) -> None:
                repeat))
 
 
+def training_batch_cloud(results: str) -> torch.Tensor:
+    """(4, 8192, 3) the points of a DEFAULTS training batch: the first 4 scenes of the training split
+    under `results`, prepared and sampled as SASA's training does (augmentation drawn from seed 0)."""
+    from sonardet.detect.sasa import DEFAULTS, resolve_params
+    from sonardet.detect.sasa.data import prepare_scene
+    from sonardet.detect.sasa.trainer import _make_batch
+
+    split = Path(results) / "splits" / "train.txt"
+    if not split.is_file():
+        raise SystemExit(f"{split}: no training split here; name the results folder of a run with --results")
+    params = resolve_params({}, base=DEFAULTS)
+    scenes = [prepare_scene(Path(results) / "scenes" / f"{sid}.npz", params) for sid in split.read_text().split()[:4]]
+    return _make_batch(scenes, params, np.random.default_rng(0), torch.device("cpu"), True)["xyz"].contiguous()
+
+
+def sampling_rows(add, repeat: int, results: str | None = None) -> None:
+    """The compiled FPS and ball-query kernels at the DEFAULTS training step's shapes (batch 4: D-FPS
+    8192 -> 2048, then D-FPS and S-FPS 2048 -> 512 and 512 -> 256; the first SA layer's three
+    dilated shells, 0.3 / 0.6 / 1.0 m with 8 / 16 / 16 neighbours, around 2048 centres), CPU, best of
+    ``repeat``; on the synthetic seabed cloud, or with `results` on a training batch of that run
+    (:func:`training_batch_cloud`: points on the objects, after the ground filter, far denser)."""
+    cpu = torch.device("cpu")
+    xyz = seabed_cloud(4, 8192) if results is None else training_batch_cloud(results)
+    for n, m in ((8192, 2048), (2048, 512), (512, 256)):
+        x = xyz[:, :n].contiguous()
+        logits = torch.randn(4, n, generator=torch.Generator().manual_seed(n))
+        add("D-FPS [compiled]", f"B=4 {n}->{m}", timeit(lambda: furthest_point_sample(x, m), cpu, repeat))
+        if n < 8192:
+            add("S-FPS (gamma=1) [compiled]", f"B=4 {n}->{m}",
+                timeit(lambda: semantic_furthest_point_sample(x, logits, m, 1.0), cpu, repeat))
+    q = index_points(xyz, furthest_point_sample(xyz, 2048))
+    add("ball_query_shells x3 dil. [compiled]", "B=4 N=8192 M=2048",
+        timeit(lambda: ball_query_shells([0.3, 0.6, 1.0], [8, 16, 16], xyz, q, dilated=True, method="compiled"),
+               cpu, repeat), "r=0.3/0.6/1.0 K=8/16/16")
+
+
 def row_adder(device: torch.device, rows: list[dict]):
     """A function add(op, shape, seconds, note="") that appends a timing row to `rows` and prints it."""
     def add(op, shape, seconds, note=""):
@@ -296,6 +333,11 @@ def main() -> None:
     ap.add_argument("--cuda-only", action="store_true", help="only the CUDA rows (on a machine with a GPU)")
     ap.add_argument("--rows-only", action="store_true",
                     help="only the grouped MLP's row kernels (weighted batch norm, segment max), CPU, --repeat times")
+    ap.add_argument("--sampling-only", action="store_true",
+                    help="only the compiled FPS and ball-query kernels at the DEFAULTS step's shapes, CPU, "
+                         "--repeat times")
+    ap.add_argument("--results", default=None,
+                    help="with --sampling-only: time on a DEFAULTS training batch of this run's training scenes")
     ap.add_argument("--json", default=None, help="write the rows to this JSON file")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -304,16 +346,19 @@ def main() -> None:
     rows: list[dict] = []
     print(f"torch {torch.__version__}, CPU threads {torch.get_num_threads()}")
     print(f"{'device':6s} {'op':34s} {'shape':34s} {'time':>13s}")
-    if args.rows_only:
+    if args.rows_only or args.sampling_only:
         add = row_adder(torch.device("cpu"), rows)
-        weighted_bn_rows(add, args.repeat)
-        segment_max_rows(add, args.repeat)
+        if args.rows_only:
+            weighted_bn_rows(add, args.repeat)
+            segment_max_rows(add, args.repeat)
+        if args.sampling_only:
+            sampling_rows(add, args.repeat, args.results)
         batches = []
     elif args.cuda_only:
         batches = []
     else:
         run(torch.device("cpu"), batches, repeat, rows)
-    if torch.cuda.is_available() and not args.no_cuda and not args.rows_only:
+    if torch.cuda.is_available() and not args.no_cuda and not (args.rows_only or args.sampling_only):
         print(f"CUDA: {torch.cuda.get_device_name()}")
         run(torch.device("cuda"), [2, 8], args.repeat, rows)
     if not args.quick and batches:
