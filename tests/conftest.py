@@ -70,13 +70,17 @@ def one_torch_thread():
 
 def copy_workflow(work: Path) -> Path:
     """Copy what a Snakemake run needs (Snakefile, rules, scripts, config, profiles, library, the test
-    plugins) into `work`."""
+    plugins) into `work`.
+
+    The `__pycache__` folders come along: Python's bytecode and Numba's compiled kernels (which
+    `scripts/setup.sh` compiles into them, `sonardet.warm`) are checked against their source file's
+    modification time and size, which the copy keeps, so the run's jobs load the kernels as a workflow
+    run after the setup does, instead of compiling them again (minutes of a test run)."""
     for name in ("Snakefile", "rules", "workflow_scripts", "config", "profiles", "src", "environment.yml",
                  "tests/plugins"):
         src = REPO / name
         if src.is_dir():
-            shutil.copytree(src, work / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"),
-                            dirs_exist_ok=True)
+            shutil.copytree(src, work / name, symlinks=True, dirs_exist_ok=True)
         else:
             shutil.copy(src, work / name)
     return work

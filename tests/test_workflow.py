@@ -452,9 +452,12 @@ def test_rerun_is_a_no_op_and_deterministic(smoke_run):
                           cwd=smoke_run, capture_output=True, text=True)
     assert proc.returncode == 0 and "Nothing to be done" in proc.stdout + proc.stderr
     tv = read_templates(smoke_run / "results/templates/tetrapod_s.npz")
-    subprocess.run([sys.executable, "-m", "snakemake", "--cores", "1", "--configfile", "config_smoke.yaml",
-                    "--forcerun", "template_scan", "results/templates/tetrapod_s.npz"],
-                   cwd=smoke_run, capture_output=True, text=True, check=True)
+    # The target before --forcerun, which takes several values: after it, the target would be read
+    # as a second rule to force and the default target (every template's dependants) rerun.
+    proc = subprocess.run([sys.executable, "-m", "snakemake", "results/templates/tetrapod_s.npz", "--cores", "1",
+                           "--configfile", "config_smoke.yaml", "--forcerun", "template_scan"],
+                          cwd=smoke_run, capture_output=True, text=True, check=True)
+    assert "1 of 1 steps (100%) done" in proc.stdout + proc.stderr
     again = read_templates(smoke_run / "results/templates/tetrapod_s.npz")
     assert np.array_equal(tv.xyz, again.xyz)
     assert len(before) > 0
