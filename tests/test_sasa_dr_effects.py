@@ -153,3 +153,53 @@ def test_line_offsets_have_the_drawn_sigma(scene):
     offs = np.concatenate([domain_randomise(scene, p, np.random.default_rng(s)).draws["line_offsets_m"]
                            for s in range(40)])
     assert len(offs) > 400 and abs(offs.std() - 0.04) < 0.1 * 0.04 and abs(offs.mean()) < 0.01
+
+
+def _in_box_footprints_numpy(xy, boxes, margin_m):
+    """The NumPy form `_in_box_footprints` compiles (one box at a time)."""
+    inside = np.zeros(len(xy), bool)
+    for b in boxes:
+        hl, hw = 0.5 * b[3] + margin_m, 0.5 * b[4] + margin_m
+        r = math.hypot(hl, hw)
+        near = np.flatnonzero((np.abs(xy[:, 0] - b[0]) <= r) & (np.abs(xy[:, 1] - b[1]) <= r))
+        d = xy[near] - b[:2]
+        c, s = math.cos(b[6]), math.sin(b[6])
+        inside[near[(np.abs(c * d[:, 0] + s * d[:, 1]) <= hl) & (np.abs(-s * d[:, 0] + c * d[:, 1]) <= hw)]] = True
+    return inside
+
+
+def test_box_footprints_compiled_equal_the_numpy_form(scene):
+    rng = np.random.default_rng(3)
+    boxes = scene.boxes.astype(np.float64)
+    xy = np.r_[rng.uniform(-12, 12, (4000, 2)), boxes[:, :2] + rng.normal(0, 0.8, (len(boxes), 2)),
+               [[np.nan, 0.0], [0.0, np.inf]]]
+    # points exactly on a footprint's edge (yaw 0): the <= tests keep them
+    edge = np.array([[0.0, 0.0, 0.0, 2.0, 1.0, 1.0, 0.0]])
+    on_edge = np.array([[1.0 + 0.2, 0.0], [0.0, 0.5 + 0.2], [1.2000001, 0.0]])
+    for pts, bx in ((xy, boxes), (on_edge, edge), (xy, boxes[:0])):
+        got = _in_box_footprints(pts, bx, dr.DR_BOX_MARGIN_M if bx is boxes else 0.2)
+        np.testing.assert_array_equal(got, _in_box_footprints_numpy(pts, bx, dr.DR_BOX_MARGIN_M if bx is boxes
+                                                                   else 0.2))
+    assert _in_box_footprints(on_edge, edge, 0.2).tolist() == [True, True, False]
+
+
+def test_leak_dips_only_near_dip_cells_equal_the_full_interpolation():
+    """`_hat_dip` interpolates only points next to a dip cell; every point gets the value of the full
+    bilinear interpolation, bit for bit (zeros elsewhere), also beyond the grid's edges."""
+    rng = np.random.default_rng(5)
+    lo, cell, shape = np.array([-10.0, -7.5]), 0.5, (40, 30)
+    for cells in (np.array([[0, 0], [39, 29], [12, 7], [12, 8], [0, 29]]), rng.integers(0, 30, (12, 2)),
+                  np.zeros((0, 2), np.int64)):
+        grid = np.zeros(shape)
+        if len(cells):
+            np.maximum.at(grid, (cells[:, 0], cells[:, 1]), rng.uniform(0.1, 0.4, len(cells)))
+
+        def dip(q):
+            return dr.ground_at(lo, grid, cell, q)
+
+        xy = np.r_[rng.uniform(lo - 1.0, lo + np.array(shape) * cell + 1.0, (20000, 2)),
+                   lo + (cells[:, :2] + 0.5) * cell, lo + (cells[:, :2] + 1.5) * cell]
+        got = dr._hat_dip(xy, dip, lo, cell, shape, cells)
+        want = dip(xy)
+        assert got.tobytes() == want.tobytes()
+        assert (got > 0).sum() == (want > 0).sum() and ((got > 0).sum() > 0) == (len(cells) > 0)

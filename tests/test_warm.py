@@ -1,6 +1,6 @@
 """`python -m sonardet.warm` (run by scripts/setup.sh) fills Numba's cache so that later processes compile
 nothing: on the network and input sizes of the warm-up and on others (the DEFAULTS network), for the SASA
-training, its inference and the model-based detector.
+training (with and without domain randomisation), its inference and the model-based detector.
 
 Each step is its own process over an empty cache folder (NUMBA_CACHE_DIR), so the first one compiles
 every kernel (about 40 s on the 2-core machine)."""
@@ -26,6 +26,8 @@ with tempfile.TemporaryDirectory() as tmp:
     scenes = write_box_scenes(Path(tmp), 2, extent_m=20.0, points_per_m2=50.0, n_objects=8, first_seed=5)
     train(scenes, scenes[1:], {"epochs": 1, "batch_size": 2, "n_points": 2048, "num_threads": 1, "progress": False,
                                "val_every_epochs": 1}, Path(tmp) / "model", device="cpu", resume=False)
+    train(scenes, scenes[1:], {"epochs": 1, "batch_size": 2, "n_points": 2048, "num_threads": 1, "progress": False,
+                               "dr_enabled": True}, Path(tmp) / "model_dr", device="cpu", resume=False)
 sasa = compile_stats()
 warm.warm_model_based()
 print(json.dumps({"sasa": sasa, "all": compile_stats()}))

@@ -10,7 +10,8 @@ by calling them with guessed types:
 * SASA: a tiny network trained for one epoch on two small box scenes (:mod:`sonardet.sim.boxes`) with
   validation on one
   (training and inference paths: sampling, ball query, batch norm, segment max, NMS), once with the
-  fused kernels' serial row loops and once with their parallel ones (``PARALLEL_MIN_ELEMENTS`` 0);
+  fused kernels' serial row loops and once with their parallel ones (``PARALLEL_MIN_ELEMENTS`` 0)
+  and domain randomisation (``dr_enabled``);
 * the model-based detectors (``ours``: ground model, proposals, grid ICP, scoring; ``paper``: the
   windows' point-to-point ICP) on a short survey line over one cone on a flat seabed, made with the
   project's sonar model.
@@ -56,7 +57,9 @@ def warm_sasa(folder: Path) -> None:
     try:
         for k, min_elements in enumerate((default_min, 0)):
             kernels.PARALLEL_MIN_ELEMENTS = min_elements
-            train(scenes, scenes[:1], _SASA_TINY, folder / f"sasa{k}", device="cpu", resume=False)
+            # the second one with domain randomisation (its compiled helpers in sasa.data)
+            train(scenes, scenes[:1], dict(_SASA_TINY, dr_enabled=k == 1), folder / f"sasa{k}", device="cpu",
+                  resume=False)
     finally:
         kernels.PARALLEL_MIN_ELEMENTS = default_min
 

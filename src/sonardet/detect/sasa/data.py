@@ -39,6 +39,7 @@ from ...sim.effects.refraction import flat_seabed_cos, svp_bias_dz
 from ...sim.effects.roughness import roughness_point_offsets
 from ...io.artifacts import read_json_file
 from ...io.scenes import read_scene_points
+from ...jit import numba
 
 log = logging.getLogger(__name__)
 
@@ -394,20 +395,72 @@ def _ground_model(scene: PreparedScene, cell_m: float):
 
 
 def _in_box_footprints(xy: np.ndarray, boxes: np.ndarray, margin_m: float) -> np.ndarray:
-    """(n,) bool: xy (n, 2) inside the footprint of any box (K, 7) grown by ``margin_m`` per side."""
+    """(n,) bool: xy (n, 2) inside the footprint of any box (K, 7) grown by ``margin_m`` per side.
+
+    One compiled pass (`_footprint_hits`) over boxes and points: with NumPy a scene's few dozen boxes
+    cost a dozen array calls each, most of the time for the few hundred points of a call."""
     inside = np.zeros(len(xy), bool)
-    if len(xy) == 0:
+    if len(xy) == 0 or len(boxes) == 0:
         return inside
-    for b in boxes:
-        hl, hw = 0.5 * b[3] + margin_m, 0.5 * b[4] + margin_m
-        r = math.hypot(hl, hw)
-        near = np.flatnonzero((np.abs(xy[:, 0] - b[0]) <= r) & (np.abs(xy[:, 1] - b[1]) <= r))
-        if len(near) == 0:
-            continue
-        d = xy[near] - b[:2]
-        c, s = math.cos(b[6]), math.sin(b[6])
-        inside[near[(np.abs(c * d[:, 0] + s * d[:, 1]) <= hl) & (np.abs(-s * d[:, 0] + c * d[:, 1]) <= hw)]] = True
+    b = np.ascontiguousarray(boxes, dtype=np.float64).reshape(-1, 7)
+    hl, hw = 0.5 * b[:, 3] + margin_m, 0.5 * b[:, 4] + margin_m
+    # The radius, cosine and sine as Python's math gives them (the NumPy form's bits).
+    r = np.array([math.hypot(a, c) for a, c in zip(hl.tolist(), hw.tolist())])
+    cos_yaw = np.array([math.cos(y) for y in b[:, 6].tolist()])
+    sin_yaw = np.array([math.sin(y) for y in b[:, 6].tolist()])
+    _footprint_hits(np.ascontiguousarray(xy, dtype=np.float64), b, hl, hw, r, cos_yaw, sin_yaw, inside)
     return inside
+
+
+@numba.njit(cache=True, nogil=True)
+def _footprint_hits(xy, boxes, hl, hw, r, cos_yaw, sin_yaw, inside):
+    """Mark in `inside` the points xy (n, 2) within box k's footprint: |x - cx| and |y - cy| within
+    r[k], then the box frame's |u| <= hl[k] and |w| <= hw[k] (the operations of the NumPy form)."""
+    for k in range(boxes.shape[0]):
+        cx, cy, c, s = boxes[k, 0], boxes[k, 1], cos_yaw[k], sin_yaw[k]
+        for i in range(xy.shape[0]):
+            if inside[i] or abs(xy[i, 0] - cx) > r[k] or abs(xy[i, 1] - cy) > r[k]:
+                continue
+            dx = xy[i, 0] - cx
+            dy = xy[i, 1] - cy
+            if abs(c * dx + s * dy) <= hl[k] and abs(-s * dx + c * dy) <= hw[k]:
+                inside[i] = True
+
+
+def _hat_dip(xy: np.ndarray, dip, grid_lo: np.ndarray, cell_m: float, grid_shape, cells: np.ndarray) -> np.ndarray:
+    """`dip(xy)` (n,) of the leaks' dip grid, which is 0 but at the grid cells `cells` (P, 2): the
+    bilinear interpolation (`ground_at`, clamped at the edges) is exactly 0.0 wherever none of the
+    four cell centres around a point is a dip cell, so only the other points (`_near_dip_cells`) are
+    interpolated. The same values as `dip(xy)`, for the few percent of a scene's points near a leak."""
+    out = np.zeros(len(xy))
+    if len(xy) == 0 or len(cells) == 0:
+        return out
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
+    is_dip = np.zeros(tuple(int(n) for n in grid_shape), dtype=np.bool_)
+    is_dip[np.asarray(cells)[:, 0], np.asarray(cells)[:, 1]] = True
+    near = np.zeros(len(xy), dtype=np.bool_)
+    _near_dip_cells(xy, np.asarray(grid_lo, dtype=np.float64), float(cell_m), is_dip, near)
+    if near.any():
+        out[near] = dip(xy[near])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _near_dip_cells(xy, lo, cell, is_dip, near):
+    """Mark in `near` the points xy (n, 2) one of whose four surrounding cell centres (the nodes of the
+    bilinear interpolation, coordinates clamped to the grid) is a dip cell; NaN coordinates too."""
+    n0, n1 = is_dip.shape
+    for i in range(xy.shape[0]):
+        u = (xy[i, 0] - lo[0]) / cell - 0.5
+        w = (xy[i, 1] - lo[1]) / cell - 0.5
+        if not (u == u and w == w):
+            near[i] = True  # left to the interpolation itself
+            continue
+        u = min(max(u, 0.0), n0 - 1.0)
+        w = min(max(w, 0.0), n1 - 1.0)
+        a0, b0 = int(np.floor(u)), int(np.floor(w))
+        a1, b1 = min(a0 + 1, n0 - 1), min(b0 + 1, n1 - 1)
+        near[i] = is_dip[a0, b0] or is_dip[a0, b1] or is_dip[a1, b0] or is_dip[a1, b1]
 
 
 def _object_index(label: np.ndarray, obj_id: np.ndarray) -> np.ndarray:
@@ -477,8 +530,12 @@ def dr_density_weight(xy: np.ndarray, draws: dict) -> np.ndarray:
     """Relative sampling density (n,) at xy (n, 2) of a scene's draws (before the dropout blobs): the
     waves rescaled to [-1, 1] over the scene's point pool, weight = contrast^(wave / 2), so that the
     largest / smallest weight of the pool is the drawn contrast."""
+    return _density_weight_of(_density_wave(np.asarray(xy, np.float64), draws), draws)
+
+
+def _density_weight_of(wave: np.ndarray, draws: dict) -> np.ndarray:
+    """`dr_density_weight` from the waves' sum (`_density_wave`) at the points."""
     lo, hi = draws["density_wave_range"]
-    wave = _density_wave(np.asarray(xy, np.float64), draws)
     wave = (2.0 * wave - (lo + hi)) / (hi - lo) if hi > lo else np.zeros(len(wave))
     return np.exp((0.5 * math.log(draws["density_contrast"])) * wave)
 
@@ -671,7 +728,7 @@ def _dr_leaks(st: _DRState, scene: PreparedScene, params: dict, r: np.random.Gen
         leak_xy, leak_h0, leak_h = leak_xy[ok], leak_h0[ok], leak_h[ok]
         ok = ~_in_box_footprints(leak_xy, st.boxes, DR_BOX_MARGIN_M)
         leak_xy, leak_h0, leak_h = leak_xy[ok], leak_h0[ok], leak_h[ok]
-        st.h = st.h + dip(st.xyz[:, :2])
+        st.h = st.h + _hat_dip(st.xyz[:, :2], dip, st.grid_lo, cell, st.grid_shape, cells)
         out_h = hq + dip(q)
     leak_xyz = np.c_[leak_xy, st.ground(leak_xy) + leak_h0] if len(leak_xy) else np.zeros((0, 3))
     st.draws.update(leak_centres=centres, leak_depths_m=dips, n_leak=len(leak_xy))
@@ -689,7 +746,7 @@ def _dr_weights(st: _DRState, params: dict, r_density: np.random.Generator,
                  density_phase_rad=r.uniform(0.0, 2 * math.pi, DR_DENSITY_WAVES))
     wave = _density_wave(xyz[:, :2], draws)
     draws["density_wave_range"] = (float(wave.min()), float(wave.max())) if len(wave) else (0.0, 0.0)
-    weight = dr_density_weight(xyz[:, :2], draws)
+    weight = _density_weight_of(wave, draws)  # the waves once: `dr_density_weight` of the same points
     r = r_dropout
     n_blob = _draw_int(r, params["dr_dropout_blobs"])
     bc = xyz[r.integers(0, len(xyz), n_blob), :2]
