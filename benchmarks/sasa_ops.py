@@ -10,7 +10,8 @@ Workload: a synthetic seabed-like cloud (x, y uniform over 40 m x 40 m, z a gent
 a few 1-2 m mounds), the SASA sampling chain 16384 -> 4096 -> 1024 -> 512 points, the ball
 queries of an SA1 layer with sonar radii (0.4 / 0.8 / 1.2 m, nsample 16 / 16 / 32), grouping of
 64-channel features, the compact grouped MLP's weighted batch norm and max pooling (fused kernels
-against PyTorch), and rotated NMS / IoU on 500 boxes clustered around 25 objects.
+against PyTorch; its last layer's batch norm and the pooling as one function against the two), and
+rotated NMS / IoU on 500 boxes clustered around 25 objects.
 
 Peak memory of the ball query is measured in a fresh subprocess (ru_maxrss growth) so earlier
 allocations do not hide it.
@@ -220,6 +221,40 @@ def segment_max_rows(add, repeat: int) -> None:
                repeat))
 
 
+def last_layer_rows(add, repeat: int) -> None:
+    """A compact grouped MLP's last layer and its pooling, forward + backward through autograd, as a
+    training step on the calling thread runs them: the weighted batch norm + ReLU and the segment max
+    as one function (``[fused]``, `backbone.weighted_batch_norm_relu_max`) against the two functions
+    one after the other (``[two steps]``, what ``FUSE_LAST_MAX = False`` runs); the same numbers.
+    60,000 rows of 64 and 30,000 of 128 channels in segments of 1-32 rows."""
+    from sonardet.detect.sasa import backbone
+
+    for n_seg, ch in ((3_600, 64), (1_800, 128)):
+        g = torch.Generator().manual_seed(ch)
+        lengths = torch.randint(1, 33, (n_seg,), generator=g)
+        rows = int(lengths.sum())
+        counts = torch.randint(1, 4, (rows,), generator=g).float()
+        group = backbone.GroupRows(point=torch.arange(rows),
+                                   centre=torch.repeat_interleave(torch.arange(n_seg), lengths),
+                                   weight=counts, lengths=lengths, total=int(counts.sum()))
+        h = (torch.randn(rows, ch, generator=g) * 2).requires_grad_()
+        bn = torch.nn.BatchNorm1d(ch)
+        up = torch.randn(n_seg, ch, generator=g)
+        default = backbone.FUSE_LAST_MAX
+        try:
+            for name, fuse in (("fused", True), ("two steps", False)):
+                backbone.FUSE_LAST_MAX = fuse
+
+                def fwd_bwd():
+                    (backbone.weighted_batch_norm_relu_max(h, bn, group) * up).sum().backward()
+                    h.grad = bn.weight.grad = bn.bias.grad = None
+
+                add(f"last BN+ReLU+max fwd+bwd [{name}]", f"R={rows} C={ch}",
+                    timeit(fwd_bwd, torch.device("cpu"), repeat))
+        finally:
+            backbone.FUSE_LAST_MAX = default
+
+
 def training_batch_cloud(results: str) -> torch.Tensor:
     """(4, 8192, 3) the points of a DEFAULTS training batch: the first 4 scenes of the training split
     under `results`, prepared and sampled as SASA's training does (augmentation drawn from seed 0)."""
@@ -310,6 +345,7 @@ def run(device: torch.device, batches: list[int], repeat: int, rows: list[dict])
     if device.type == "cpu":
         weighted_bn_rows(add, repeat)
         segment_max_rows(add, repeat)
+        last_layer_rows(add, repeat)
     boxes, scores = clustered_boxes(500)
     boxes, scores = boxes.to(device), scores.to(device)
     n_keep = len(nms_bev_rotated(boxes, scores, 0.1))
@@ -332,7 +368,8 @@ def main() -> None:
     ap.add_argument("--no-cuda", action="store_true")
     ap.add_argument("--cuda-only", action="store_true", help="only the CUDA rows (on a machine with a GPU)")
     ap.add_argument("--rows-only", action="store_true",
-                    help="only the grouped MLP's row kernels (weighted batch norm, segment max), CPU, --repeat times")
+                    help="only the grouped MLP's row kernels (weighted batch norm, segment max, the two fused in the "
+                         "last layer), CPU, --repeat times")
     ap.add_argument("--sampling-only", action="store_true",
                     help="only the compiled FPS and ball-query kernels at the DEFAULTS step's shapes, CPU, "
                          "--repeat times")
@@ -351,6 +388,7 @@ def main() -> None:
         if args.rows_only:
             weighted_bn_rows(add, args.repeat)
             segment_max_rows(add, args.repeat)
+            last_layer_rows(add, args.repeat)
         if args.sampling_only:
             sampling_rows(add, args.repeat, args.results)
         batches = []

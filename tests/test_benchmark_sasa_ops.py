@@ -29,3 +29,18 @@ def test_a_results_folder_without_a_training_split_is_named(tmp_path, monkeypatc
     monkeypatch.setattr(sys, "argv", ["sasa_ops.py", "--sampling-only", "--repeat", "1", "--results", str(tmp_path)])
     with pytest.raises(SystemExit, match="no training split here"):
         sasa_ops.main()
+
+
+def test_rows_only_times_the_fused_last_layer_against_the_two_steps(tmp_path, monkeypatch):
+    """--rows-only: the batch norm, the segment max and the last layer's fused function against its two
+    steps, every row timed (the fused switch restored after)."""
+    from sonardet.detect.sasa import backbone
+
+    out = tmp_path / "rows.json"
+    monkeypatch.setattr(sys, "argv", ["sasa_ops.py", "--rows-only", "--repeat", "1", "--threads", "1",
+                                      "--json", str(out)])
+    sasa_ops.main()
+    ops = {r["op"] for r in json.loads(out.read_text())["rows"]}
+    assert {"last BN+ReLU+max fwd+bwd [fused]", "last BN+ReLU+max fwd+bwd [two steps]"} <= ops
+    assert {"segment max fwd [fused]", "weighted BN+ReLU fwd [fused]"} <= ops
+    assert backbone.FUSE_LAST_MAX is True

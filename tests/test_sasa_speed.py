@@ -354,3 +354,95 @@ def test_fused_batch_norm_backward_is_its_row_order_formulation_bit_for_bit():
         want_dh[i] = a * (g - wn[i] * (db32 + xhat * dg32))
     assert dbeta.tobytes() == want_db.tobytes() and dgamma.tobytes() == want_dg.tobytes()
     assert dh.tobytes() == want_dh.tobytes()
+
+
+def test_fused_last_layer_and_max_kernels_are_the_two_steps_bit_for_bit():
+    """`bn_relu_segment_max_forward` / ``_backward`` give the same max, statistics and gradients, bit for
+    bit, as the batch-norm + ReLU kernels followed by the segment-max kernels on the calling thread:
+    with ties above zero (quantised inputs), one-row segments, chunk boundaries inside segments,
+    gradients of both signs and signed zeros."""
+    from sonardet.detect.sasa.ops import kernels
+
+    rng = np.random.default_rng(5)
+    lengths = rng.integers(1, 12, 1500)
+    lengths[:40] = 1
+    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    R, C, nchunks = int(offsets[-1]), 19, 7
+    h = (np.round(rng.standard_normal((R, C)) * 4) / 4 + 0.3).astype(np.float32)  # many equal values
+    wn = rng.integers(1, 6, R).astype(np.float32)
+    wn /= wn.sum()
+    gamma = rng.uniform(-1.5, 1.5, C).astype(np.float32)
+    beta = rng.uniform(-0.5, 0.5, C).astype(np.float32)
+    g = rng.standard_normal((len(lengths), C)).astype(np.float32)
+    g[rng.random(g.shape) < 0.05] = -0.0
+    y, mean, var = kernels.weighted_bn_relu_forward(h, wn, gamma, beta, 1e-5, nchunks, False)
+    m = kernels.segment_max_forward(y, offsets, nchunks, False)
+    invstd = 1.0 / np.sqrt(var + 1e-5)
+    gy = kernels.segment_max_backward(g, m, y, offsets, nchunks, False)
+    dh, dgamma, dbeta = kernels.weighted_bn_relu_backward(gy, h, wn, mean, var, invstd, gamma, beta, 1e-5, nchunks,
+                                                          False)
+    m2, ties, mean2, var2 = kernels.bn_relu_segment_max_forward(h, wn, gamma, beta, 1e-5, offsets, nchunks)
+    dh2, dgamma2, dbeta2 = kernels.bn_relu_segment_max_backward(g, m2, ties, h, wn, mean2, var2, invstd, gamma, beta,
+                                                                1e-5, offsets, nchunks)
+    # the case the ties exist for: two or more rows of a segment at the same positive max
+    seg = np.repeat(np.arange(len(lengths)), lengths)
+    assert ((ties >= 2) & (m2 > 0)).sum() > 100
+    assert np.array_equal(ties, np.add.reduceat((y == m[seg]).astype(np.int32), offsets[:-1], axis=0))
+    for a, b in ((m, m2), (mean, mean2), (var, var2), (dh, dh2), (dgamma, dgamma2), (dbeta, dbeta2)):
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def test_grouped_mlp_with_the_fused_last_layer_is_bitwise_the_unfused(monkeypatch):
+    """A compact grouped MLP trains to the same bits with its last batch norm + ReLU and the max over
+    the groups fused (`weighted_batch_norm_relu_max`) and run one after the other: outputs, every
+    gradient and the running statistics, over two training steps, and in evaluation."""
+    from sonardet.detect.sasa import backbone
+
+    xyz, q, feats, idx, cnt = _groups(seed=4)
+    calls = []
+    fused = backbone._FusedWeightedBatchNormReLUMax.apply
+    monkeypatch.setattr(backbone._FusedWeightedBatchNormReLUMax, "apply",
+                        lambda *a: calls.append(1) or fused(*a))
+    outs = {}
+    for fuse in (False, True):
+        monkeypatch.setattr(backbone, "FUSE_LAST_MAX", fuse)
+        torch.manual_seed(3)
+        m = GroupedMLP(6, [16, 32, 24], compact=True)
+        g = torch.Generator().manual_seed(8)
+        runs = []
+        for _ in range(2):
+            m.zero_grad()
+            runs.append(_run(m, lambda mod, *a: mod(*a), xyz, q, feats, idx, cnt,
+                             torch.randn(q.shape[0], q.shape[1], 24, generator=g)))
+        m.eval()
+        with torch.no_grad():
+            runs.append(m(xyz, q, feats, idx, cnt))
+        outs[fuse] = runs
+    assert int((cnt == 0).sum()) > 0
+    assert len(calls) == 2  # the fused function ran in both training steps (and only with FUSE_LAST_MAX)
+
+    def flat(x):
+        if isinstance(x, (list, tuple)):
+            return [t for y in x for t in flat(y)]
+        return [x]
+
+    a, b = flat(outs[False]), flat(outs[True])
+    assert len(a) == len(b) > 10
+    for x, y in zip(a, b):
+        assert x.dtype == y.dtype and torch.equal(x, y)
+
+
+def test_one_layer_grouped_mlp_fuses_its_only_layer(monkeypatch):
+    """With a single layer the fused function takes the first batch norm (bn0); same bits as unfused."""
+    from sonardet.detect.sasa import backbone
+
+    xyz, q, feats, idx, cnt = _groups(seed=6)
+    res = []
+    for fuse in (False, True):
+        monkeypatch.setattr(backbone, "FUSE_LAST_MAX", fuse)
+        torch.manual_seed(2)
+        m = GroupedMLP(6, [12], compact=True)
+        res.append(_run(m, lambda mod, *a: mod(*a), xyz, q, feats, idx, cnt, torch.ones(q.shape[0], q.shape[1], 12)))
+    for x, y in zip(res[0][:3], res[1][:3]):
+        assert torch.equal(x, y)
+    assert all(torch.equal(x, y) for x, y in zip(res[0][3], res[1][3]))

@@ -245,6 +245,76 @@ def segment_max(h: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
     return torch.segment_reduce(h, "max", lengths=lengths, axis=0, unsafe=True)
 
 
+class _FusedWeightedBatchNormReLUMax(torch.autograd.Function):
+    """:class:`_FusedWeightedBatchNormReLU` followed by :class:`_FusedSegmentMax` in one function (CPU
+    float32, on the calling thread): the same max, statistics and gradients, bit for bit, without the
+    (R, C) output and gradient between the two (``kernels.bn_relu_segment_max_forward``); every
+    segment non-empty. Forward returns (max (S, C), mean, var)."""
+
+    @staticmethod
+    def forward(ctx, h, wn, gamma, beta, eps, offsets):
+        nchunks = _kernel_chunks(h)[0]
+        out, ties, mean, var = kernels.bn_relu_segment_max_forward(
+            h.detach().numpy(), wn.numpy(), gamma.detach().numpy(), beta.detach().numpy(), float(eps),
+            offsets.numpy(), nchunks)
+        out, ties, mean, var = (torch.from_numpy(x) for x in (out, ties, mean, var))
+        ctx.save_for_backward(h, wn, gamma, beta, mean, var, torch.rsqrt(var + eps), out, ties, offsets)
+        ctx.eps, ctx.nchunks = float(eps), nchunks
+        mean, var = mean.to(h.dtype), var.to(h.dtype)
+        ctx.mark_non_differentiable(mean, var)
+        return out, mean, var
+
+    @staticmethod
+    def backward(ctx, g, _gmean, _gvar):
+        h, wn, gamma, beta, mean, var, invstd, out, ties, offsets = ctx.saved_tensors
+        dh, dgamma, dbeta = kernels.bn_relu_segment_max_backward(
+            g.contiguous().numpy(), out.numpy(), ties.numpy(), h.detach().numpy(), wn.numpy(), mean.numpy(),
+            var.numpy(), invstd.numpy(), gamma.detach().numpy(), beta.detach().numpy(), ctx.eps, offsets.numpy(),
+            ctx.nchunks)
+        return (torch.from_numpy(dh), None, torch.from_numpy(dgamma).to(h.dtype), torch.from_numpy(dbeta).to(h.dtype),
+                None, None)
+
+
+def _update_running_stats(bn: nn.BatchNorm1d, mean: torch.Tensor, var: torch.Tensor, rows: GroupRows) -> None:
+    """The batch norm's running mean and (unbiased) variance after a training batch of ``rows.total``
+    slots with batch statistics mean, biased var."""
+    with torch.no_grad():
+        bn.num_batches_tracked.add_(1)
+        f = 1.0 / float(bn.num_batches_tracked) if bn.momentum is None else bn.momentum
+        n = rows.total
+        bn.running_mean.mul_(1.0 - f).add_(mean, alpha=f)
+        bn.running_var.mul_(1.0 - f).add_(var, alpha=f * n / max(n - 1, 1))
+
+
+def _check_weighted_bn(bn: nn.BatchNorm1d) -> None:
+    if not (bn.track_running_stats and bn.affine):
+        raise ValueError("the weighted batch norm needs an affine batch norm with running statistics")
+
+
+#: Whether the last batch norm + ReLU of a compact grouped MLP and the max over its groups run as one
+#: function on CPU (`weighted_batch_norm_relu_max`); False runs them one after the other (the same
+#: numbers; the tests compare the two).
+FUSE_LAST_MAX = True
+
+
+def weighted_batch_norm_relu_max(h: torch.Tensor, bn: nn.BatchNorm1d, rows: GroupRows) -> torch.Tensor:
+    """``segment_max(weighted_batch_norm_relu(h, bn, rows), rows.lengths)``: the max (S, C) over each
+    group's rows of ReLU(BatchNorm(h)), in one fused function where it applies (training, CPU float32,
+    every group non-empty, the kernels on the calling thread), the two steps otherwise; the same
+    numbers, gradients and running statistics either way."""
+    lengths = rows.lengths
+    if not (FUSE_LAST_MAX and bn.training and _fused_ok(h) and lengths.device.type == "cpu" and len(lengths)
+            and not _kernel_chunks(h)[1] and bool((lengths > 0).all())):
+        return segment_max(weighted_batch_norm_relu(h, bn, rows), lengths)
+    _check_weighted_bn(bn)
+    wn = rows.weight.to(h.dtype) / rows.total
+    offsets = torch.zeros(len(lengths) + 1, dtype=torch.int64)
+    torch.cumsum(lengths.to(torch.int64), 0, out=offsets[1:])
+    out, mean, var = _FusedWeightedBatchNormReLUMax.apply(h, wn, bn.weight, bn.bias, bn.eps, offsets)
+    _update_running_stats(bn, mean, var, rows)
+    return out
+
+
 def weighted_batch_norm_relu(h: torch.Tensor, bn: nn.BatchNorm1d, rows: GroupRows) -> torch.Tensor:
     """ReLU(BatchNorm(h)) of rows h (R, C) that stand for ``rows.weight`` slots each.
 
@@ -256,17 +326,11 @@ def weighted_batch_norm_relu(h: torch.Tensor, bn: nn.BatchNorm1d, rows: GroupRow
     """
     if not bn.training:
         return batch_norm_rows(h, bn).relu_()
-    if not (bn.track_running_stats and bn.affine):
-        raise ValueError("the weighted batch norm needs an affine batch norm with running statistics")
+    _check_weighted_bn(bn)
     wn = rows.weight.to(h.dtype) / rows.total
     fn = _FusedWeightedBatchNormReLU if _fused_ok(h) else _WeightedBatchNormReLU
     y, mean, var = fn.apply(h, wn, bn.weight, bn.bias, bn.eps)
-    with torch.no_grad():
-        bn.num_batches_tracked.add_(1)
-        f = 1.0 / float(bn.num_batches_tracked) if bn.momentum is None else bn.momentum
-        n = rows.total
-        bn.running_mean.mul_(1.0 - f).add_(mean, alpha=f)
-        bn.running_var.mul_(1.0 - f).add_(var, alpha=f * n / max(n - 1, 1))
+    _update_running_stats(bn, mean, var, rows)
     return y
 
 
@@ -348,11 +412,12 @@ class GroupedMLP(nn.Module):
         h = coordinate_linear(rel, self.w_xyz.weight)  # (R, w0), metres in, features out
         if self.w_feat is not None and features is not None:
             h = h + self.w_feat(features).reshape(B * N, -1).index_select(0, rows.point)
-        h = weighted_batch_norm_relu(h, self.bn0, rows)
-        for lin, bn in zip(self.rest.linears, self.rest.norms):
-            h = weighted_batch_norm_relu(lin(h), bn, rows)
-        # max over each centre's rows (they are contiguous); empty groups give zeros
-        pooled = segment_max(h, rows.lengths)
+        layers = [(None, self.bn0), *zip(self.rest.linears, self.rest.norms)]
+        for lin, bn in layers[:-1]:
+            h = weighted_batch_norm_relu(h if lin is None else lin(h), bn, rows)
+        lin, bn = layers[-1]
+        # the last layer's output, max over each centre's rows (they are contiguous); empty groups give zeros
+        pooled = weighted_batch_norm_relu_max(h if lin is None else lin(h), bn, rows)
         pooled = pooled * (cnt > 0).reshape(B * M, 1).to(pooled.dtype)
         return pooled.view(B, M, -1)
 
