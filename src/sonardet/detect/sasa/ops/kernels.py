@@ -495,6 +495,22 @@ def _bn_affine(mean, var, gamma, beta, eps):
 
 
 @numba.njit(**_JIT)
+def _weighted_stats(h, wn, nchunks, parallel):
+    """The weighted mean and biased variance (C,) float64 of rows h (R, C) (see
+    `weighted_bn_relu_forward`): centred float64 sums around a provisional mean, per chunk."""
+    mean0 = _provisional_mean(h, wn)
+    s1, s2 = _weighted_sums(h, wn, mean0, nchunks, parallel)
+    # Divided by the weights' own float64 sum (1 up to float32 rounding), so the result does not
+    # depend on the provisional mean.
+    wsum = wn.astype(np.float64).sum()
+    wsum = wsum if wsum > 0 else 1.0
+    shift = s1.sum(axis=0) / wsum
+    mean = mean0 + shift
+    var = np.maximum(s2.sum(axis=0) / wsum - shift * shift, 0.0)
+    return mean, var
+
+
+@numba.njit(**_JIT)
 def _bn_relu_rows(h, scale, offset, y, lo, hi):
     C = h.shape[1]
     for i in range(lo, hi):
@@ -522,16 +538,8 @@ def weighted_bn_relu_forward(h, wn, gamma, beta, eps, nchunks, parallel=True):
     ``nchunks`` chunks, which fix the order of the sums; ``parallel`` runs the chunks on Numba's
     threads, else one after the other on the calling thread (the same numbers either way).
     """
-    R, C = h.shape
-    mean0 = _provisional_mean(h, wn)
-    s1, s2 = _weighted_sums(h, wn, mean0, nchunks, parallel)
-    # Divided by the weights' own float64 sum (1 up to float32 rounding), so the result does not
-    # depend on the provisional mean.
-    wsum = wn.astype(np.float64).sum()
-    wsum = wsum if wsum > 0 else 1.0
-    shift = s1.sum(axis=0) / wsum
-    mean = mean0 + shift
-    var = np.maximum(s2.sum(axis=0) / wsum - shift * shift, 0.0)
+    R = h.shape[0]
+    mean, var = _weighted_stats(h, wn, nchunks, parallel)
     scale, offset = _bn_affine(mean, var, gamma, beta, eps)
     y = np.empty_like(h)
     if parallel:
@@ -584,6 +592,26 @@ def _bn_grad_parallel(gy, h, wn, scale, offset, mean32, inv32, a, db32, dg32, dh
 
 
 @numba.njit(**_JIT)
+def _grad_setup(mean, var, invstd, gamma, beta, eps, nchunks, C):
+    """What a batch-norm backward pass needs first: the forward's float32 scale and offset (its ReLU
+    mask), zeroed float64 per-chunk sums (nchunks, C) of the gradient and of its product with xhat,
+    and the float32 mean and inverse standard deviation."""
+    scale, offset = _bn_affine(mean, var, gamma, beta, eps)
+    return (scale, offset, np.zeros((nchunks, C)), np.zeros((nchunks, C)), mean.astype(np.float32),
+            invstd.astype(np.float32))
+
+
+@numba.njit(**_JIT)
+def _grad_coefficients(sb, sg, gamma, invstd):
+    """From the per-chunk sums: dbeta, dgamma (C,) float64 and the float32 coefficients of dh
+    (gamma invstd, dbeta, dgamma)."""
+    dbeta = sb.sum(axis=0)
+    dgamma = sg.sum(axis=0)
+    a = (gamma.astype(np.float64) * invstd).astype(np.float32)
+    return dbeta, dgamma, a, dbeta.astype(np.float32), dgamma.astype(np.float32)
+
+
+@numba.njit(**_JIT)
 def weighted_bn_relu_backward(gy, h, wn, mean, var, invstd, gamma, beta, eps, nchunks, parallel=True):
     """Gradient of :func:`weighted_bn_relu_forward`: (dh (R, C) float32, dgamma (C,), dbeta (C,)).
 
@@ -595,22 +623,14 @@ def weighted_bn_relu_backward(gy, h, wn, mean, var, invstd, gamma, beta, eps, nc
     ``nchunks`` and ``parallel`` as in the forward.
     """
     R, C = h.shape
-    scale, offset = _bn_affine(mean, var, gamma, beta, eps)
-    sb = np.zeros((nchunks, C))
-    sg = np.zeros((nchunks, C))
-    mean32 = mean.astype(np.float32)
-    inv32 = invstd.astype(np.float32)
+    scale, offset, sb, sg, mean32, inv32 = _grad_setup(mean, var, invstd, gamma, beta, eps, nchunks, C)
     if parallel:
         _bn_grad_sums_parallel(gy, h, scale, offset, mean32, inv32, sb, sg)
     else:
         for k in range(nchunks):
             _bn_grad_sums_rows(gy, h, scale, offset, mean32, inv32, sb[k], sg[k], k * R // nchunks,
                                (k + 1) * R // nchunks)
-    dbeta = sb.sum(axis=0)
-    dgamma = sg.sum(axis=0)
-    a = (gamma.astype(np.float64) * invstd).astype(np.float32)
-    db32 = dbeta.astype(np.float32)
-    dg32 = dgamma.astype(np.float32)
+    dbeta, dgamma, a, db32, dg32 = _grad_coefficients(sb, sg, gamma, invstd)
     dh = np.empty_like(h)
     if parallel:
         _bn_grad_parallel(gy, h, wn, scale, offset, mean32, inv32, a, db32, dg32, dh, nchunks)
@@ -734,14 +754,8 @@ def bn_relu_segment_max_forward(h, wn, gamma, beta, eps, offsets, nchunks):
     values, bit for bit, on the calling thread; every segment non-empty. The output y is recomputed
     from h where it is needed (one multiply-add per value) instead of written and read back: the
     passes are bound by memory bandwidth."""
-    R, C = h.shape
-    mean0 = _provisional_mean(h, wn)
-    s1, s2 = _weighted_sums(h, wn, mean0, nchunks, False)
-    wsum = wn.astype(np.float64).sum()
-    wsum = wsum if wsum > 0 else 1.0
-    shift = s1.sum(axis=0) / wsum
-    mean = mean0 + shift
-    var = np.maximum(s2.sum(axis=0) / wsum - shift * shift, 0.0)
+    C = h.shape[1]
+    mean, var = _weighted_stats(h, wn, nchunks, False)
     scale, offset = _bn_affine(mean, var, gamma, beta, eps)
     S = offsets.shape[0] - 1
     out = np.empty((S, C), dtype=h.dtype)
@@ -807,20 +821,12 @@ def bn_relu_segment_max_backward(g, out, ties, h, wn, mean, var, invstd, gamma, 
     `weighted_bn_relu_backward` (on the calling thread, the same chunks) give, without the (R, C)
     gradient between them: each row's gradient after the ReLU is made where it is used."""
     R, C = h.shape
-    scale, offset = _bn_affine(mean, var, gamma, beta, eps)
-    sb = np.zeros((nchunks, C))
-    sg = np.zeros((nchunks, C))
-    mean32 = mean.astype(np.float32)
-    inv32 = invstd.astype(np.float32)
+    scale, offset, sb, sg, mean32, inv32 = _grad_setup(mean, var, invstd, gamma, beta, eps, nchunks, C)
     gd = _max_grads(g, ties)
     for k in range(nchunks):
         _bn_max_grad_sums_rows(gd, out, offsets, h, scale, offset, mean32, inv32, sb[k], sg[k],
                                k * R // nchunks, (k + 1) * R // nchunks)
-    dbeta = sb.sum(axis=0)
-    dgamma = sg.sum(axis=0)
-    a = (gamma.astype(np.float64) * invstd).astype(np.float32)
-    db32 = dbeta.astype(np.float32)
-    dg32 = dgamma.astype(np.float32)
+    dbeta, dgamma, a, db32, dg32 = _grad_coefficients(sb, sg, gamma, invstd)
     dh = np.empty_like(h)
     _bn_max_grad_rows(gd, out, offsets, h, wn, scale, offset, mean32, inv32, a, db32, dg32, dh, 0, R)
     return dh, dgamma, dbeta
