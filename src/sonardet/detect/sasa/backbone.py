@@ -215,6 +215,19 @@ def _fused_ok(h: torch.Tensor) -> bool:
     return kernels is not None and h.device.type == "cpu" and h.dtype == torch.float32 and h.is_contiguous()
 
 
+def _segments_fusable(h: torch.Tensor, lengths: torch.Tensor) -> bool:
+    """Whether the segment max of h (R, C) over ``lengths`` (S,) can run through the fused kernels:
+    CPU float32 rows and at least one segment, every one non-empty."""
+    return _fused_ok(h) and lengths.device.type == "cpu" and len(lengths) > 0 and bool((lengths > 0).all())
+
+
+def _segment_offsets(lengths: torch.Tensor) -> torch.Tensor:
+    """First row (S + 1,) int64 of each contiguous segment of ``lengths`` (S,) rows, and the total."""
+    offsets = torch.zeros(len(lengths) + 1, dtype=torch.int64)
+    torch.cumsum(lengths.to(torch.int64), 0, out=offsets[1:])
+    return offsets
+
+
 class _FusedSegmentMax(torch.autograd.Function):
     """``torch.segment_reduce(h, "max", lengths)`` over contiguous row segments (all non-empty) through
     the CPU kernels of :mod:`.ops.kernels` (float32): the same values and the same gradient, bit for bit
@@ -222,8 +235,7 @@ class _FusedSegmentMax(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, h, lengths):
-        offsets = torch.zeros(len(lengths) + 1, dtype=torch.int64)
-        torch.cumsum(lengths, 0, out=offsets[1:])
+        offsets = _segment_offsets(lengths)
         out = torch.from_numpy(kernels.segment_max_forward(h.detach().numpy(), offsets.numpy(), *_kernel_chunks(h)))
         ctx.save_for_backward(h, out, offsets)
         return out
@@ -240,8 +252,8 @@ def segment_max(h: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
     """Max (S, C) over the contiguous row segments of h (R, C) with ``lengths`` (S,) rows each (every
     length at least 1): ``torch.segment_reduce(h, "max", ...)``, through the fused kernels on CPU float32
     (PyTorch's CPU backward of it walks each channel separately and cost more than the forward)."""
-    if _fused_ok(h) and lengths.device.type == "cpu" and len(lengths) and bool((lengths > 0).all()):
-        return _FusedSegmentMax.apply(h, lengths.to(torch.int64))
+    if _segments_fusable(h, lengths):
+        return _FusedSegmentMax.apply(h, lengths)
     return torch.segment_reduce(h, "max", lengths=lengths, axis=0, unsafe=True)
 
 
@@ -252,8 +264,7 @@ class _FusedWeightedBatchNormReLUMax(torch.autograd.Function):
     segment non-empty. Forward returns (max (S, C), mean, var)."""
 
     @staticmethod
-    def forward(ctx, h, wn, gamma, beta, eps, offsets):
-        nchunks = _kernel_chunks(h)[0]
+    def forward(ctx, h, wn, gamma, beta, eps, offsets, nchunks):
         out, ties, mean, var = kernels.bn_relu_segment_max_forward(
             h.detach().numpy(), wn.numpy(), gamma.detach().numpy(), beta.detach().numpy(), float(eps),
             offsets.numpy(), nchunks)
@@ -272,7 +283,7 @@ class _FusedWeightedBatchNormReLUMax(torch.autograd.Function):
             var.numpy(), invstd.numpy(), gamma.detach().numpy(), beta.detach().numpy(), ctx.eps, offsets.numpy(),
             ctx.nchunks)
         return (torch.from_numpy(dh), None, torch.from_numpy(dgamma).to(h.dtype), torch.from_numpy(dbeta).to(h.dtype),
-                None, None)
+                None, None, None)
 
 
 def _update_running_stats(bn: nn.BatchNorm1d, mean: torch.Tensor, var: torch.Tensor, rows: GroupRows) -> None:
@@ -303,14 +314,14 @@ def weighted_batch_norm_relu_max(h: torch.Tensor, bn: nn.BatchNorm1d, rows: Grou
     every group non-empty, the kernels on the calling thread), the two steps otherwise; the same
     numbers, gradients and running statistics either way."""
     lengths = rows.lengths
-    if not (FUSE_LAST_MAX and bn.training and _fused_ok(h) and lengths.device.type == "cpu" and len(lengths)
-            and not _kernel_chunks(h)[1] and bool((lengths > 0).all())):
+    fusable = FUSE_LAST_MAX and bn.training and _segments_fusable(h, lengths)
+    nchunks, parallel = _kernel_chunks(h) if fusable else (0, False)
+    if not fusable or parallel:
         return segment_max(weighted_batch_norm_relu(h, bn, rows), lengths)
     _check_weighted_bn(bn)
     wn = rows.weight.to(h.dtype) / rows.total
-    offsets = torch.zeros(len(lengths) + 1, dtype=torch.int64)
-    torch.cumsum(lengths.to(torch.int64), 0, out=offsets[1:])
-    out, mean, var = _FusedWeightedBatchNormReLUMax.apply(h, wn, bn.weight, bn.bias, bn.eps, offsets)
+    out, mean, var = _FusedWeightedBatchNormReLUMax.apply(h, wn, bn.weight, bn.bias, bn.eps,
+                                                          _segment_offsets(lengths), nchunks)
     _update_running_stats(bn, mean, var, rows)
     return out
 
