@@ -443,6 +443,20 @@ def _check_count(layout: _Layout, n_points: int, where: str) -> None:
         )
 
 
+def _open_layout(path, crs, columns, z_positive):
+    """What :func:`read` and :func:`iter_chunks` learn of a text file before parsing it: (path, its name
+    for messages, gzipped, layout, column names, resolved axes, the cloud's CRS); ``crs``, ``columns``
+    and ``z_positive`` as in ``read_points``."""
+    p = Path(path)
+    where = str(p)
+    check_z_positive(z_positive, where)
+    suffix, gz = _base_suffix(p)
+    layout = _peek(p, gz, suffix == ".pts")
+    names = _column_names(layout, columns, where)
+    axes = _resolve(names, where, z_positive)
+    return p, where, gz, layout, names, axes, _cloud_crs(axes, crs, where)
+
+
 def read(
     path: str | Path,
     *,
@@ -453,14 +467,7 @@ def read(
     """Read a text point cloud (see the module docstring): xyz float64 as written in the file (the
     file's frame: metres, or degrees for longitude/latitude columns; z up), numeric extra columns as
     attributes; ``columns``, ``crs`` and ``z_positive`` as in ``read_points``."""
-    p = Path(path)
-    where = str(p)
-    check_z_positive(z_positive, where)
-    suffix, gz = _base_suffix(p)
-    layout = _peek(p, gz, suffix == ".pts")
-    names = _column_names(layout, columns, where)
-    axes = _resolve(names, where, z_positive)
-    cloud_crs = _cloud_crs(axes, crs, where)
+    p, where, gz, layout, names, axes, cloud_crs = _open_layout(path, crs, columns, z_positive)
     cols = _Columns(p, gz, layout, names, axes)
     df = _read_frame(cols)
     keep = _attribute_columns(df, cols)
@@ -550,14 +557,7 @@ def iter_chunks(
     checks (``core.apply_z_positive``) look at the first chunk."""
     import pandas as pd
 
-    p = Path(path)
-    where = str(p)
-    check_z_positive(z_positive, where)
-    suffix, gz = _base_suffix(p)
-    layout = _peek(p, gz, suffix == ".pts")
-    names = _column_names(layout, columns, where)
-    axes = _resolve(names, where, z_positive)
-    merged = _cloud_crs(axes, crs, where)
+    p, where, gz, layout, names, axes, merged = _open_layout(path, crs, columns, z_positive)
     options = {"crs": crs, "read": {"columns": columns, "z_positive": z_positive}}
     n, checked = 0, False
     try:

@@ -179,15 +179,18 @@ def _tile_queries(q: torch.Tensor, chunk_size: int) -> list[torch.Tensor]:
     return chunks
 
 
+def _empty_shell_outputs(B: int, M: int, shells, device) -> list:
+    """Per shell (r_in2, r_out2, nsample, r): zero counts (B, M) and zero indices (B, M, nsample), int64:
+    what an empty ball returns, filled in by the query."""
+    return [(torch.zeros((B, M), dtype=torch.long, device=device),
+             torch.zeros((B, M, ns), dtype=torch.long, device=device)) for _, _, ns, _ in shells]
+
+
 def _ball_query_tiled(xyz, new_xyz, shells, chunk_size, max_pairs):
     B, N, _ = xyz.shape
     M = new_xyz.shape[1]
     device = xyz.device
-    outs = [
-        (torch.zeros((B, M), dtype=torch.long, device=device),
-         torch.zeros((B, M, ns), dtype=torch.long, device=device))
-        for _, _, ns, _ in shells
-    ]
+    outs = _empty_shell_outputs(B, M, shells, device)
     r_max = max(s[3] for s in shells)
     for b in range(B):
         p = xyz[b]
@@ -233,11 +236,7 @@ def _ball_query_dense(xyz, new_xyz, shells, chunk_size, max_pairs):
     B, N, _ = xyz.shape
     M = new_xyz.shape[1]
     device = xyz.device
-    outs = [
-        (torch.zeros((B, M), dtype=torch.long, device=device),
-         torch.zeros((B, M, ns), dtype=torch.long, device=device))
-        for _, _, ns, _ in shells
-    ]
+    outs = _empty_shell_outputs(B, M, shells, device)
     step = max(1, min(chunk_size, max_pairs // max(1, B * N)))
     for m0 in range(0, M, step):
         q = new_xyz[:, m0:m0 + step]  # (B, Mc, 3)
