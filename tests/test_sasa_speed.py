@@ -446,3 +446,25 @@ def test_one_layer_grouped_mlp_fuses_its_only_layer(monkeypatch):
     for x, y in zip(res[0][:3], res[1][:3]):
         assert torch.equal(x, y)
     assert all(torch.equal(x, y) for x, y in zip(res[0][3], res[1][3]))
+
+
+@pytest.mark.parametrize("widths", [[16, 24], [12]])  # [12], fused: the only batch norm is the fused last layer's
+@pytest.mark.parametrize("fuse", [False, True])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_a_non_finite_activation_is_an_error_not_zeros(monkeypatch, fuse, bad, widths):
+    """The fused batch-norm kernels would turn a channel with a NaN or infinite row into ReLU zeros
+    (PyTorch's formulation gives NaN, which the trainer's non-finite-loss check catches): both fused
+    paths raise FloatingPointError instead, naming the cause; PyTorch's path (float64 rows) still
+    gives NaN."""
+    from sonardet.detect.sasa import backbone
+
+    monkeypatch.setattr(backbone, "FUSE_LAST_MAX", fuse)
+    xyz, q, feats, idx, cnt = _groups(seed=5)
+    feats[1, int(idx[1, 7, 0]), 2] = bad  # a neighbour of a non-empty group
+    torch.manual_seed(1)
+    m = GroupedMLP(6, widths, compact=True)
+    with pytest.raises(FloatingPointError, match="non-finite activations entering a SASA batch norm"):
+        m(xyz, q, feats, idx, cnt)
+    m64 = GroupedMLP(6, widths, compact=True).double()
+    out = m64(xyz.double(), q.double(), feats.double(), idx, cnt)
+    assert torch.isnan(out).any()

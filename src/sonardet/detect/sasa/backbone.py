@@ -32,6 +32,7 @@ from __future__ import annotations
 from contextlib import contextmanager
 from typing import NamedTuple
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -187,6 +188,21 @@ def _kernel_chunks(h: torch.Tensor) -> tuple[int, bool]:
     return kernels.parallel_chunks(torch.get_num_threads()), kernels.run_parallel(h.numel())
 
 
+def _check_finite_stats(mean: np.ndarray, var: np.ndarray, h: torch.Tensor) -> None:
+    """Raise FloatingPointError when a batch-norm statistic computed by the fused kernels is not finite.
+
+    The kernels assume finite rows: a NaN or infinite activation makes its channel's mean non-finite
+    (the float64 sums of finite float32 rows cannot overflow) and the kernels' ReLU would then write
+    zeros where PyTorch writes NaN, hiding a diverged training from the trainer's non-finite-loss
+    check. This is that check, earlier: the same error type, before anything is written."""
+    if not (np.isfinite(mean).all() and np.isfinite(var).all()):
+        bad = int((~(np.isfinite(mean) & np.isfinite(var))).sum())
+        raise FloatingPointError(
+            f"non-finite activations entering a SASA batch norm ({bad} of {len(mean)} channels, rows "
+            f"{tuple(h.shape)}): the training diverged or its input holds NaN/inf; lower the learning rate "
+            "(`lr`) or check the scenes")
+
+
 class _FusedWeightedBatchNormReLU(torch.autograd.Function):
     """:class:`_WeightedBatchNormReLU` through the fused CPU kernels of :mod:`.ops.kernels` (float32)."""
 
@@ -194,6 +210,7 @@ class _FusedWeightedBatchNormReLU(torch.autograd.Function):
     def forward(ctx, h, wn, gamma, beta, eps):
         y, mean, var = kernels.weighted_bn_relu_forward(h.detach().numpy(), wn.numpy(), gamma.detach().numpy(),
                                                         beta.detach().numpy(), float(eps), *_kernel_chunks(h))
+        _check_finite_stats(mean, var, h)
         y, mean, var = torch.from_numpy(y), torch.from_numpy(mean), torch.from_numpy(var)
         ctx.save_for_backward(h, wn, gamma, beta, mean, var, torch.rsqrt(var + eps))
         ctx.eps = float(eps)
@@ -268,6 +285,7 @@ class _FusedWeightedBatchNormReLUMax(torch.autograd.Function):
         out, ties, mean, var = kernels.bn_relu_segment_max_forward(
             h.detach().numpy(), wn.numpy(), gamma.detach().numpy(), beta.detach().numpy(), float(eps),
             offsets.numpy(), nchunks)
+        _check_finite_stats(mean, var, h)
         out, ties, mean, var = (torch.from_numpy(x) for x in (out, ties, mean, var))
         ctx.save_for_backward(h, wn, gamma, beta, mean, var, torch.rsqrt(var + eps), out, ties, offsets)
         ctx.eps, ctx.nchunks = float(eps), nchunks

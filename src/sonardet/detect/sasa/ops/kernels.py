@@ -36,7 +36,9 @@ the dtype of the coordinates, one rounding per operation, no fused multiply-add)
   count, the backward makes each row's gradient from its segment's where it is used. The same bits
   as the two pairs of kernels above (`tests/test_sasa_speed.py`), about a quarter to a third faster.
 
-Inputs must be finite (callers fall back to the PyTorch operators otherwise). Compiled on first use
+The batch-norm kernels need finite rows: a non-finite one makes its channel's statistics non-finite,
+which the callers (`backbone._check_finite_stats`) turn into a FloatingPointError before using the
+output (the segment max alone follows PyTorch's NaN rule above). Compiled on first use
 and cached on disk (``cache=True``); FPS and the ball query run one thread per cloud of the batch.
 """
 
