@@ -3,7 +3,7 @@ nothing: on the network and input sizes of the warm-up and on others (the DEFAUL
 training (with and without domain randomisation), its inference and the model-based detector.
 
 Each step is its own process over an empty cache folder (NUMBA_CACHE_DIR), so the first one compiles
-every kernel (about 40 s on the 2-core machine)."""
+every kernel (about 80 s on the 2-core machine, its SASA and model-based parts in two processes)."""
 
 from __future__ import annotations
 
@@ -48,8 +48,16 @@ def test_warm_up_compiles_every_kernel_later_processes_use(tmp_path):
     first = _run(["-m", "sonardet.warm"], tmp_path)
     n_first = int(first.stdout.split("sonardet.warm: ")[1].split()[0])
     assert n_first > 0, first.stdout
-    second = _run(["-m", "sonardet.warm"], tmp_path)
+    # The first run compiled its two parts side by side (two processes on the 2-core machine); the second
+    # runs them one after the other in one process and finds every kernel in the cache.
+    second = _run(["-m", "sonardet.warm", "--jobs", "1"], tmp_path)
     assert "sonardet.warm: 0 Numba compilations" in second.stdout, second.stdout
     after = json.loads(_run(["-c", _AFTER_WARM], tmp_path).stdout.strip().splitlines()[-1])
     assert after["sasa"]["n"] == 0, f"the DEFAULTS network compiled kernels the warm-up did not: {after}"
     assert after["all"]["n"] == 0, after
+
+
+def test_jobs_below_one_is_refused_before_any_work():
+    proc = subprocess.run([sys.executable, "-m", "sonardet.warm", "--jobs", "0"], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(REPO / "src")}, cwd=REPO)
+    assert proc.returncode == 2 and "--jobs 0: at least 1" in proc.stderr, proc.stderr

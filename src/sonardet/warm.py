@@ -16,8 +16,13 @@ by calling them with guessed types:
   windows' point-to-point ICP) on a short survey line over one cone on a flat seabed, made with the
   project's sonar model.
 
-What it prints: the compilations and their seconds (:func:`sonardet.jit.compile_stats`). A second
-run compiles nothing (every kernel loads from the cache) and takes a few seconds. The results are
+The two parts compile disjoint sets of kernels (no kernel of one is used by the other; each kernel
+has its own cache index file), so with two or more cores they run side by side in two processes
+(``--jobs``, default: the cores this process may use, at most 2): 92 s against 114-127 s one after
+the other on an empty cache of the 2-core machine (docs/speed_log.md, "The warm-up's two parts").
+
+What it prints: the compilations and their seconds (:func:`sonardet.jit.compile_stats`, summed over
+the parts). A second run compiles nothing (every kernel loads from the cache) and takes a few seconds. The results are
 thrown away; nothing of a workflow run is read or written. It is a warm-up, not a test: the test
 suite checks these code paths' results.
 """
@@ -89,17 +94,45 @@ def warm_model_based() -> None:
         ModelBasedDetector(templates, {"reef_cone": cone}, variant=variant)(xyz)
 
 
+def _warm_part(part: str) -> dict:
+    """Run one part of the warm-up in this process ("sasa" or "model_based"); its compile stats."""
+    logging.disable(logging.WARNING)  # the tiny runs' own progress and warnings are of no interest here
+    if part == "sasa":
+        with tempfile.TemporaryDirectory(prefix="sonardet-warm-") as tmp:
+            warm_sasa(Path(tmp))
+    else:
+        warm_model_based()
+    return compile_stats()
+
+
+_PARTS = ("sasa", "model_based")
+
+
 def main(argv=None) -> int:
     """Warm the kernels (see the module docstring); prints what was compiled and how long it took."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    from .survey.tiling import available_cores
+
     ap = argparse.ArgumentParser(prog="python -m sonardet.warm", description=__doc__.splitlines()[0])
-    ap.parse_args(argv)
-    logging.disable(logging.WARNING)  # the tiny runs' own progress and warnings are of no interest here
+    ap.add_argument("--jobs", type=int, default=None,
+                    help="parts compiled at once in their own processes (default: the usable cores, at most 2; "
+                         "1: both in this process, one after the other)")
+    args = ap.parse_args(argv)
+    jobs = min(len(_PARTS), available_cores()) if args.jobs is None else args.jobs
+    if jobs < 1:
+        ap.error(f"--jobs {jobs}: at least 1")
     t = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="sonardet-warm-") as tmp:
-        warm_sasa(Path(tmp))
-    warm_model_based()
-    c = compile_stats()
-    print(f"sonardet.warm: {c['n']} Numba compilations in {c['s']:.0f} s "
+    if jobs == 1:
+        stats = [_warm_part(p) for p in _PARTS]
+        stats = stats[-1:]  # one process: its counts already hold both parts
+    else:
+        # spawn: fresh interpreters (no inherited Numba or OpenMP thread state), the environment passed on
+        with ProcessPoolExecutor(max_workers=min(jobs, len(_PARTS)), mp_context=get_context("spawn")) as ex:
+            stats = list(ex.map(_warm_part, _PARTS))
+    n, secs = sum(c["n"] for c in stats), sum(c["s"] for c in stats)
+    print(f"sonardet.warm: {n} Numba compilations in {secs:.0f} s "
           f"({time.perf_counter() - t:.0f} s in all; later processes load them from the cache)")
     return 0
 
