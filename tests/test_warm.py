@@ -3,7 +3,7 @@ nothing: on the network and input sizes of the warm-up and on others (the DEFAUL
 training (with and without domain randomisation), its inference and the model-based detector.
 
 Each step is its own process over an empty cache folder (NUMBA_CACHE_DIR), so the first one compiles
-every kernel (about 80 s on the 2-core machine, its SASA and model-based parts in two processes)."""
+every kernel (about 90 s on the 2-core machine, its SASA and model-based parts in two processes)."""
 
 from __future__ import annotations
 

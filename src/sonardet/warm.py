@@ -22,9 +22,9 @@ has its own cache index file), so with two or more cores they run side by side i
 the other on an empty cache of the 2-core machine (docs/speed_log.md, "The warm-up's two parts").
 
 What it prints: the compilations and their seconds (:func:`sonardet.jit.compile_stats`, summed over
-the parts). A second run compiles nothing (every kernel loads from the cache) and takes a few seconds. The results are
-thrown away; nothing of a workflow run is read or written. It is a warm-up, not a test: the test
-suite checks these code paths' results.
+the parts). A second run compiles nothing (every kernel loads from the cache) and takes a few
+seconds. The results are thrown away; nothing of a workflow run is read or written. It is a
+warm-up, not a test: the test suite checks these code paths' results.
 """
 
 from __future__ import annotations
@@ -125,8 +125,9 @@ def main(argv=None) -> int:
         ap.error(f"--jobs {jobs}: at least 1")
     t = time.perf_counter()
     if jobs == 1:
-        stats = [_warm_part(p) for p in _PARTS]
-        stats = stats[-1:]  # one process: its counts already hold both parts
+        for part in _PARTS:
+            last = _warm_part(part)
+        stats = [last]  # one process: its counts after the last part hold both
     else:
         # spawn: fresh interpreters (no inherited Numba or OpenMP thread state), the environment passed on
         with ProcessPoolExecutor(max_workers=min(jobs, len(_PARTS)), mp_context=get_context("spawn")) as ex:

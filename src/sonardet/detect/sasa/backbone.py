@@ -195,8 +195,9 @@ def _check_finite_stats(mean: np.ndarray, var: np.ndarray, h: torch.Tensor) -> N
     (the float64 sums of finite float32 rows cannot overflow) and the kernels' ReLU would then write
     zeros where PyTorch writes NaN, hiding a diverged training from the trainer's non-finite-loss
     check. This is that check, earlier: the same error type, before anything is written."""
-    if not (np.isfinite(mean).all() and np.isfinite(var).all()):
-        bad = int((~(np.isfinite(mean) & np.isfinite(var))).sum())
+    ok = np.isfinite(mean) & np.isfinite(var)
+    if not ok.all():
+        bad = int((~ok).sum())
         raise FloatingPointError(
             f"non-finite activations entering a SASA batch norm ({bad} of {len(mean)} channels, rows "
             f"{tuple(h.shape)}): the training diverged or its input holds NaN/inf; lower the learning rate "
@@ -332,16 +333,16 @@ def weighted_batch_norm_relu_max(h: torch.Tensor, bn: nn.BatchNorm1d, rows: Grou
     every group non-empty, the kernels on the calling thread), the two steps otherwise; the same
     numbers, gradients and running statistics either way."""
     lengths = rows.lengths
-    fusable = FUSE_LAST_MAX and bn.training and _segments_fusable(h, lengths)
-    nchunks, parallel = _kernel_chunks(h) if fusable else (0, False)
-    if not fusable or parallel:
-        return segment_max(weighted_batch_norm_relu(h, bn, rows), lengths)
-    _check_weighted_bn(bn)
-    wn = rows.weight.to(h.dtype) / rows.total
-    out, mean, var = _FusedWeightedBatchNormReLUMax.apply(h, wn, bn.weight, bn.bias, bn.eps,
-                                                          _segment_offsets(lengths), nchunks)
-    _update_running_stats(bn, mean, var, rows)
-    return out
+    if FUSE_LAST_MAX and bn.training and _segments_fusable(h, lengths):
+        nchunks, parallel = _kernel_chunks(h)
+        if not parallel:
+            _check_weighted_bn(bn)
+            wn = rows.weight.to(h.dtype) / rows.total
+            out, mean, var = _FusedWeightedBatchNormReLUMax.apply(h, wn, bn.weight, bn.bias, bn.eps,
+                                                                  _segment_offsets(lengths), nchunks)
+            _update_running_stats(bn, mean, var, rows)
+            return out
+    return segment_max(weighted_batch_norm_relu(h, bn, rows), lengths)
 
 
 def weighted_batch_norm_relu(h: torch.Tensor, bn: nn.BatchNorm1d, rows: GroupRows) -> torch.Tensor:
