@@ -2,10 +2,13 @@
 
 Hard cases named in the tests: an object alone, a steep (10 deg) bare seabed, two touching objects,
 degenerate ICP input (3 points, collinear, planar, a window of only seabed), UTM offsets, empty and
-NaN input, a class without templates.
+NaN input, a class without templates, clouds with nothing to fit (one point, one spot, a line, a
+noisy plane) and the RANSAC seabed of a strip narrower than its inlier band.
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import numpy as np
 import pytest
@@ -273,6 +276,33 @@ def test_empty_nan_and_bad_input(objects, templates):
         detect(np.zeros((10, 3)), templates, objects, {"voxel": 0.1})
 
 
+def _degenerate_cloud(kind: str) -> np.ndarray:
+    """Valid (finite) clouds that hold no object and give the pipeline's stages nothing to fit: one
+    point, many copies of one point, a straight line, and a 20 x 20 m plane with 1 cm of noise and a
+    UTM-sized offset."""
+    rng = np.random.default_rng(3)
+    if kind == "one_point":
+        return np.array([[1.0, 2.0, -11.0]])
+    if kind == "one_point_repeated":
+        return np.tile([[1.0, 2.0, -11.0]], (1000, 1))
+    if kind == "line":
+        return np.column_stack([np.linspace(0.0, 50.0, 5000), np.zeros(5000), np.full(5000, -11.0)])
+    xy = rng.uniform(0.0, 20.0, (20000, 2)) + np.array([500000.0, 6000000.0])
+    return np.column_stack([xy, -11.0 + 0.01 * rng.standard_normal(20000)])
+
+
+@pytest.mark.parametrize("variant", ["ours", "paper"])
+@pytest.mark.parametrize("kind", ["one_point", "one_point_repeated", "line", "noisy_plane_utm"])
+def test_degenerate_clouds_give_no_detection_and_no_error(objects, templates, variant, kind):
+    """A cloud with nothing to fit runs through every stage (seabed, proposals, ICP, scoring) without
+    an exception or a non-finite box, and detects nothing (a single point: with the documented
+    "nothing to detect" warning)."""
+    warns = pytest.warns(UserWarning, match="nothing to detect") if kind == "one_point" else contextlib.nullcontext()
+    with warns:
+        dets, stats = detect(_degenerate_cloud(kind), templates, objects, variant=variant)
+    assert [d for d in dets if d["extras"].get("accepted", True)] == []  # `paper` outputs only accepted ones
+    assert all(np.all(np.isfinite(d["box"])) for d in dets)
+    assert stats["n_points"] == len(_degenerate_cloud(kind))
 def test_missing_template_class_is_a_clear_error(objects, templates):
     partial = {c: t for c, t in templates.items() if c != "reef_ring"}
     with pytest.raises(ValueError, match="no template scans for class 'reef_ring'"):
@@ -551,3 +581,39 @@ def test_worker_threads_give_the_same_detections_and_counts(objects, templates, 
     assert s1 == s3 and s1["icp_runs_by_kind"].get("tumbled", 0) > 0
     with pytest.raises(ValueError, match="threads"):
         ModelBasedDetector(templates, objects, threads=0)
+
+
+@pytest.mark.parametrize("width_m", [0.0, 0.01, 0.1])
+def test_ransac_seabed_of_a_narrow_strip_is_level_across_it(width_m):
+    """Soundings in a strip narrower than twice the RANSAC distance (here along a 30 deg heading, on a
+    2 % slope, 1 cm of vertical noise) fit a vertical plane along the strip as well as the seabed; the
+    seabed model must still be the sloped seabed, not the wall (which stopped the detection before)."""
+    from sonardet.detect.model_based.ground import ransac_plane_ground
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    along, across = rng.uniform(0.0, 40.0, n), rng.uniform(-0.5, 0.5, n) * width_m
+    u, v = np.array([np.cos(np.pi / 6), np.sin(np.pi / 6)]), np.array([-np.sin(np.pi / 6), np.cos(np.pi / 6)])
+    xy = along[:, None] * u + across[:, None] * v + np.array([500000.0, 6000000.0])
+    z = -11.0 + 0.02 * along + 0.01 * rng.standard_normal(n)
+    g = ransac_plane_ground(np.column_stack([xy, z]), 0.15, 200, 0)
+    slope = np.hypot(g.plane[0], g.plane[1]) / g.plane[2]
+    assert g.plane[2] > 0.99 and abs(slope - 0.02) < 0.002
+    assert np.abs(g.hab).max() < 0.06  # the noise only: every sounding is seabed
+    # Soundings at one spot: a level plane through them.
+    spot = ransac_plane_ground(np.tile([[3.0, 4.0, -11.0]], (50, 1)), 0.15, 200, 0)
+    assert np.allclose(spot.plane, [0.0, 0.0, 1.0, 11.0]) and np.allclose(spot.hab, 0.0)
+
+
+def test_ransac_seabed_of_a_wide_cloud_is_unchanged_by_the_strip_rule():
+    """A cloud wider than the strip rule's bound goes to RANSAC as before: the same plane as Open3D's
+    seeded RANSAC gives on its own."""
+    from sonardet.detect.model_based.ground import ransac_plane_ground
+    from sonardet.ransac import segment_plane
+
+    rng = np.random.default_rng(6)
+    pts = np.column_stack([rng.uniform(0, 30, 3000), rng.uniform(0, 0.31, 3000), -11 + 0.01 * rng.standard_normal(3000)])
+    plane, _ = segment_plane(pts, 0.15, 3, 200, 0, probability=1.0)
+    plane = plane / np.linalg.norm(plane[:3])
+    plane = -plane if plane[2] < 0 else plane
+    assert np.array_equal(ransac_plane_ground(pts, 0.15, 200, 0).plane, plane)

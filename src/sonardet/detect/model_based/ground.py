@@ -61,11 +61,13 @@ def ransac_plane_ground(xyz: np.ndarray, distance_m: float, n_iter: int, seed: i
     p = np.asarray(xyz, dtype=np.float64)
     if len(p) < 3:
         raise ValueError(f"a RANSAC plane needs at least 3 points, got {len(p)}")
-    plane, _ = segment_plane(p, distance_m, 3, n_iter, seed, probability=1.0)
-    n = np.linalg.norm(plane[:3])
-    if not np.isfinite(n) or n < 1e-12:
-        raise ValueError("RANSAC found no seabed plane (degenerate input)")
-    plane = plane / n
+    plane = _strip_plane(p, distance_m)
+    if plane is None:
+        plane, _ = segment_plane(p, distance_m, 3, n_iter, seed, probability=1.0)
+        n = np.linalg.norm(plane[:3])
+        if not np.isfinite(n) or n < 1e-12:
+            raise ValueError("RANSAC found no seabed plane (degenerate input)")
+        plane = plane / n
     if plane[2] < 0:
         plane = -plane
     if plane[2] < 0.5:
@@ -74,6 +76,28 @@ def ransac_plane_ground(xyz: np.ndarray, distance_m: float, n_iter: int, seed: i
     g = Ground(hab=np.empty(0), plane=plane)
     g.hab = g.height_above(p)
     return g
+
+
+def _strip_plane(p: np.ndarray, distance_m: float) -> np.ndarray | None:
+    """The seabed plane (a, b, c, d), unit normal, c > 0) of soundings p (N,3, m) whose xy footprint is
+    a strip narrower than 2 x distance_m across its principal direction, else None.
+
+    In such a strip a vertical plane along its middle holds every sounding within distance_m, as the
+    seabed does, and RANSAC picks whichever of the two fits tighter: for a strip narrower than the
+    soundings' vertical noise that is the vertical one (a sliver of a survey: a tile's edge, one
+    beam's soundings, or many soundings at one spot), and the detection stopped on the steepness
+    check. Here the seabed is levelled across the strip and fitted along it by least squares (z = a s
+    + c, s along the strip; a = 0 when the soundings share one spot). Wider clouds go to RANSAC as
+    before, so no survey or scene of any size changes."""
+    xy = p[:, :2] - p[:, :2].mean(0)
+    _, _, vt = np.linalg.svd(xy, full_matrices=False)
+    along, across = xy @ vt[0], xy @ vt[1]
+    if np.ptp(across) >= 2.0 * distance_m:
+        return None
+    (a, c), *_ = np.linalg.lstsq(np.column_stack([along, np.ones(len(p))]), p[:, 2], rcond=None)
+    # z = a (u . (xy - m)) + c with u = vt[0], m the xy mean, as a x + b y + c z + d = 0 with c > 0:
+    plane = np.array([-a * vt[0, 0], -a * vt[0, 1], 1.0, a * float(vt[0] @ p[:, :2].mean(0)) - c])
+    return plane / np.linalg.norm(plane[:3])
 
 
 def _fill_nearest(a: np.ndarray) -> np.ndarray:
