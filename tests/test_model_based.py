@@ -617,3 +617,19 @@ def test_ransac_seabed_of_a_wide_cloud_is_unchanged_by_the_strip_rule():
     plane = plane / np.linalg.norm(plane[:3])
     plane = -plane if plane[2] < 0 else plane
     assert np.array_equal(ransac_plane_ground(pts, 0.15, 200, 0).plane, plane)
+
+
+def test_ransac_seabed_in_front_of_a_quay_wall():
+    """A vertical wall holding twice the seabed's soundings is RANSAC's largest plane: it is set aside
+    and the seabed in front of it found; a cloud of walls only is refused, naming the walls."""
+    from sonardet.detect.model_based.ground import ransac_plane_ground
+
+    rng = np.random.default_rng(7)
+    bed = np.column_stack([rng.uniform(0, 20, 2000), rng.uniform(0, 20, 2000), -11 + 0.01 * rng.standard_normal(2000)])
+    wall = np.column_stack([rng.uniform(0, 20, 4000), 20 + 0.01 * rng.standard_normal(4000), rng.uniform(-11, 0, 4000)])
+    g = ransac_plane_ground(np.vstack([bed, wall]), 0.15, 300, 0)
+    assert g.plane[2] > 0.999 and np.abs(g.hab[:2000]).max() < 0.06
+    assert np.all(g.hab[2000:] > -0.2)  # the wall stands on the seabed
+    walls = np.vstack([wall, wall[:, [1, 0, 2]]])  # two walls at right angles
+    with pytest.raises(ValueError, match="no seabed plane flatter than 60 deg"):
+        ransac_plane_ground(walls, 0.15, 300, 0)

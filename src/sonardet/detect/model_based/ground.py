@@ -15,6 +15,9 @@ from scipy import ndimage as ndi
 from ...jit import numba
 from ...ransac import segment_plane
 
+#: Planes steeper than 60 deg (walls) the RANSAC seabed sets aside before it gives up.
+STEEP_PLANES_MAX = 3
+
 
 @dataclass
 class Ground:
@@ -57,25 +60,48 @@ def ransac_plane_ground(xyz: np.ndarray, distance_m: float, n_iter: int, seed: i
     distance_m: inlier distance of the RANSAC (m); n_iter: RANSAC iterations; seed: Open3D's RANSAC
     seed (:func:`sonardet.ransac.segment_plane`: one thread, so the plane is deterministic). The plane normal is
     oriented up; `hab` is the signed distance of each point to the plane (m).
+
+    The seabed is the largest plane flatter than 60 deg: when the largest one is steeper (a quay wall
+    or a breakwater's face with more soundings than the seabed in front of it), its inliers are set
+    aside and RANSAC runs on the rest, for up to `STEEP_PLANES_MAX` walls (ValueError after that). A
+    cloud narrower than 2 x distance_m across is a strip whose plane is levelled across it
+    (`_strip_plane`). Neither rule changes the plane of a cloud whose largest plane is flat and that
+    is wider than that.
     """
     p = np.asarray(xyz, dtype=np.float64)
     if len(p) < 3:
         raise ValueError(f"a RANSAC plane needs at least 3 points, got {len(p)}")
-    plane = _strip_plane(p, distance_m)
-    if plane is None:
-        plane, _ = segment_plane(p, distance_m, 3, n_iter, seed, probability=1.0)
-        n = np.linalg.norm(plane[:3])
-        if not np.isfinite(n) or n < 1e-12:
-            raise ValueError("RANSAC found no seabed plane (degenerate input)")
-        plane = plane / n
-    if plane[2] < 0:
-        plane = -plane
+    rest, steep = p, []
+    for _ in range(STEEP_PLANES_MAX + 1):
+        plane, inliers = _plane_of(rest, distance_m, n_iter, seed)
+        if plane[2] >= 0.5:
+            break
+        # A wall (a quay, a breakwater's face) can hold more soundings than the seabed in front of it:
+        # the seabed is the largest plane among the rest.
+        steep.append(plane[:3].round(3).tolist())
+        rest = np.delete(rest, inliers, axis=0)
+        if len(rest) < 3:
+            break
     if plane[2] < 0.5:
-        raise ValueError(f"RANSAC seabed plane is steeper than 60 deg (normal {plane[:3].round(3).tolist()}); "
+        raise ValueError(f"RANSAC found no seabed plane flatter than 60 deg (the largest planes' normals: {steep}); "
                          "is the cloud a seabed survey with z up?")
     g = Ground(hab=np.empty(0), plane=plane)
     g.hab = g.height_above(p)
     return g
+
+
+def _plane_of(p: np.ndarray, distance_m: float, n_iter: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The largest plane of p (N>=3, 3) (a, b, c, d; unit normal, c >= 0) and its inlier indices: the
+    strip rule's levelled plane (`_strip_plane`, every point an inlier) or Open3D's seeded RANSAC."""
+    plane = _strip_plane(p, distance_m)
+    if plane is not None:
+        return plane, np.arange(len(p))
+    plane, inliers = segment_plane(p, distance_m, 3, n_iter, seed, probability=1.0)
+    n = np.linalg.norm(plane[:3])
+    if not np.isfinite(n) or n < 1e-12:
+        raise ValueError("RANSAC found no seabed plane (degenerate input)")
+    plane = plane / n
+    return (-plane if plane[2] < 0 else plane), np.asarray(inliers, dtype=np.int64)
 
 
 def _strip_plane(p: np.ndarray, distance_m: float) -> np.ndarray | None:
@@ -87,14 +113,17 @@ def _strip_plane(p: np.ndarray, distance_m: float) -> np.ndarray | None:
     soundings' vertical noise that is the vertical one (a sliver of a survey: a tile's edge, one
     beam's soundings, or many soundings at one spot), and the detection stopped on the steepness
     check. Here the seabed is levelled across the strip and fitted along it by least squares (z = a s
-    + c, s along the strip; a = 0 when the soundings share one spot). Wider clouds go to RANSAC as
-    before, so no survey or scene of any size changes."""
+    + c, s along the strip; a = 0 when the soundings share one spot), provided at least half the
+    soundings lie within distance_m of that line (else the strip is a wall seen edge-on: None).
+    Wider clouds go to RANSAC as before, so no survey or scene of any size changes."""
     xy = p[:, :2] - p[:, :2].mean(0)
     _, _, vt = np.linalg.svd(xy, full_matrices=False)
     along, across = xy @ vt[0], xy @ vt[1]
     if np.ptp(across) >= 2.0 * distance_m:
         return None
     (a, c), *_ = np.linalg.lstsq(np.column_stack([along, np.ones(len(p))]), p[:, 2], rcond=None)
+    if np.mean(np.abs(p[:, 2] - (a * along + c)) < distance_m) < 0.5:
+        return None  # not a strip of seabed but a wall seen edge-on: RANSAC's steep plane sets it aside
     # z = a (u . (xy - m)) + c with u = vt[0], m the xy mean, as a x + b y + c z + d = 0 with c > 0:
     plane = np.array([-a * vt[0, 0], -a * vt[0, 1], 1.0, a * float(vt[0] @ p[:, :2].mean(0)) - c])
     return plane / np.linalg.norm(plane[:3])
