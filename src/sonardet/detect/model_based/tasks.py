@@ -19,7 +19,9 @@ Written here because no library maps over a thread pool with per-task counters m
 from __future__ import annotations
 
 import contextlib
+import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 
 
 def task_stats() -> dict:
@@ -38,10 +40,62 @@ def merge_stats(stats: dict, part: dict) -> None:
         stats["seconds"][stage] = stats["seconds"].get(stage, 0.0) + s
 
 
+#: The records of `recording` while one is active (None: not recording).
+_RECORDS: list | None = None
+
+
+@dataclass
+class RoundRecord:
+    """One `run_tasks` call: the piece function's qualified name, the number of items, the call's wall
+    seconds and each piece's own seconds (in completion order)."""
+
+    name: str
+    items: int
+    wall_s: float
+    task_s: list = field(default_factory=list)
+
+
+@contextlib.contextmanager
+def recording():
+    """Record every `run_tasks` call of this process while active; yields the list of `RoundRecord`s.
+    For benchmarks (`benchmarks/detect_threads.py`): it times each piece, which the detections do not
+    depend on."""
+    global _RECORDS
+    if _RECORDS is not None:
+        raise RuntimeError("run_tasks is already being recorded")
+    _RECORDS = records = []
+    try:
+        yield records
+    finally:
+        _RECORDS = None
+
+
+def _timed(fn, times: list):
+    def run(item, part):
+        t = time.perf_counter()
+        try:
+            return fn(item, part)
+        finally:
+            times.append(time.perf_counter() - t)
+    return run
+
+
 def run_tasks(pool: ThreadPoolExecutor | None, fn, items: list, stats: dict | None = None) -> list:
     """[fn(item, piece_stats) for item in items], on `pool`'s threads when there is one and more than
     one item; each piece's statistics are merged into `stats` (when given) in input order. An exception
     of a piece is raised here."""
+    if _RECORDS is not None:
+        rec = RoundRecord(getattr(fn, "__qualname__", repr(fn)), len(items), 0.0)
+        _RECORDS.append(rec)
+        t = time.perf_counter()
+        try:
+            return _run_tasks(pool, _timed(fn, rec.task_s), items, stats)
+        finally:
+            rec.wall_s = time.perf_counter() - t
+    return _run_tasks(pool, fn, items, stats)
+
+
+def _run_tasks(pool, fn, items, stats):
     parts = [task_stats() for _ in items]
     if pool is None or len(items) < 2:
         out = [fn(item, part) for item, part in zip(items, parts)]
