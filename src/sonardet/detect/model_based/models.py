@@ -15,6 +15,8 @@ built once per class per detector (`detector.ModelBasedDetector`; cheap: tens of
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,9 +58,10 @@ class ClassModel:
     #: across the material (a tetrapod leg's radius, half a wall); scales the shape tolerance.
     half_thickness_m: float = 0.0
 
-    @property
+    @functools.cached_property
     def median_view_n(self) -> float:
-        """Median number of points in one template view (the class's typical scan size)."""
+        """Median number of points in one template view (the class's typical scan size); computed once
+        (the views do not change after the model is built; every crop's checks ask for it)."""
         return float(np.median([len(v) for v in self.views]))
 
     @property

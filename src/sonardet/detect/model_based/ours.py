@@ -432,14 +432,19 @@ def _propose_upright(st, classes, p, rnd, accepted, stats):
     for (cls, k), (best, ii, jj, yaw_of) in zip(classes.items(), run_tasks(st.pool, peaks, list(classes.values()))):
         m = k.model
         centres = r.centre(ii, jj)
-        kept = []
         near_accepted = p["proposal_accepted_radius_frac"] * m.radius_m
+        # The distances to the kept peaks and to the class's accepted objects as one array each (the
+        # same values as one np.hypot per pair; the Python loops over pairs held the GIL).
+        accepted_xy = np.array([a.t[:2] for a in accepted if a.cls == cls], dtype=np.float64).reshape(-1, 2)
+        kept = np.empty((len(centres), 2))
+        n_kept = 0
         for (x, y), i, j, yaw in zip(centres, ii, jj, yaw_of):
-            if any(np.hypot(x - kx, y - ky) < p["proposal_merge_m"] for kx, ky in kept):
+            if n_kept and (np.hypot(x - kept[:n_kept, 0], y - kept[:n_kept, 1]) < p["proposal_merge_m"]).any():
                 continue
-            if any(a.cls == cls and np.hypot(*(a.t[:2] - [x, y])) < near_accepted for a in accepted):
+            if len(accepted_xy) and (np.hypot(*(accepted_xy - [x, y]).T) < near_accepted).any():
                 continue
-            kept.append((x, y))
+            kept[n_kept] = x, y
+            n_kept += 1
             out.append((cls, np.array([x, y]), yaw, float(best[i, j])))
     stats["seconds"]["proposals"] += time.perf_counter() - t
     return out

@@ -15,6 +15,7 @@ p_scene = R p_canonical + t (metres). ICP works on float64 Open3D point clouds.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,10 +83,10 @@ def is_rigid_transform(T: np.ndarray) -> bool:
 
     Computed on Python floats (the determinant as the triple product of the rows): called after every
     ICP stage, where numpy's per-call overhead on a 3x3 block cost more than the ICP of a small crop."""
-    T = np.asarray(T, dtype=np.float64)
-    if not np.isfinite(T).all():
+    rows = np.asarray(T, dtype=np.float64).tolist()
+    if not all(math.isfinite(v) for row in rows for v in row):
         return False
-    (a, b, c), (d, e, f), (g, h, i) = T[:3, :3].tolist()
+    (a, b, c), (d, e, f), (g, h, i) = (row[:3] for row in rows[:3])
     det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
     if abs(det - 1.0) >= ROTATION_TOLERANCE:
         return False
