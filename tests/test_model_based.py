@@ -278,11 +278,13 @@ def test_empty_nan_and_bad_input(objects, templates):
 
 def _degenerate_cloud(kind: str) -> np.ndarray:
     """Valid (finite) clouds that hold no object and give the pipeline's stages nothing to fit: one
-    point, many copies of one point, a straight line, and a 20 x 20 m plane with 1 cm of noise and a
-    UTM-sized offset."""
+    point, eight points, many copies of one point, a straight line, and a 20 x 20 m plane with 1 cm
+    of noise and a UTM-sized offset."""
     rng = np.random.default_rng(3)
     if kind == "one_point":
         return np.array([[1.0, 2.0, -11.0]])
+    if kind == "few_points":  # a 1 x 1 m patch of 8 soundings, one 1 m up: fewer than any fit needs
+        return np.column_stack([rng.uniform(0.0, 1.0, (8, 2)), np.r_[-10.0, np.full(7, -11.0)]])
     if kind == "one_point_repeated":
         return np.tile([[1.0, 2.0, -11.0]], (1000, 1))
     if kind == "line":
@@ -292,12 +294,13 @@ def _degenerate_cloud(kind: str) -> np.ndarray:
 
 
 @pytest.mark.parametrize("variant", ["ours", "paper"])
-@pytest.mark.parametrize("kind", ["one_point", "one_point_repeated", "line", "noisy_plane_utm"])
+@pytest.mark.parametrize("kind", ["one_point", "few_points", "one_point_repeated", "line", "noisy_plane_utm"])
 def test_degenerate_clouds_give_no_detection_and_no_error(objects, templates, variant, kind):
     """A cloud with nothing to fit runs through every stage (seabed, proposals, ICP, scoring) without
-    an exception or a non-finite box, and detects nothing (a single point: with the documented
-    "nothing to detect" warning)."""
-    warns = pytest.warns(UserWarning, match="nothing to detect") if kind == "one_point" else contextlib.nullcontext()
+    an exception or a non-finite box, and detects nothing (fewer points than one fit needs: with the
+    documented "nothing to detect" warning)."""
+    few = kind in ("one_point", "few_points")
+    warns = pytest.warns(UserWarning, match="nothing to detect") if few else contextlib.nullcontext()
     with warns:
         dets, stats = detect(_degenerate_cloud(kind), templates, objects, variant=variant)
     assert [d for d in dets if d["extras"].get("accepted", True)] == []  # `paper` outputs only accepted ones
@@ -584,10 +587,12 @@ def test_worker_threads_give_the_same_detections_and_counts(objects, templates, 
 
 
 @pytest.mark.parametrize("width_m", [0.0, 0.01, 0.1])
-def test_ransac_seabed_of_a_narrow_strip_is_level_across_it(width_m):
+@pytest.mark.parametrize("raised_frac", [0.0, 0.2])
+def test_ransac_seabed_of_a_narrow_strip_is_level_across_it(width_m, raised_frac):
     """Soundings in a strip narrower than twice the RANSAC distance (here along a 30 deg heading, on a
-    2 % slope, 1 cm of vertical noise) fit a vertical plane along the strip as well as the seabed; the
-    seabed model must still be the sloped seabed, not the wall (which stopped the detection before)."""
+    2 % slope, 1 cm of vertical noise, a share of them raised 0.2-2 m as by objects) fit a vertical
+    plane along the strip as well as the seabed; the seabed model must still be the sloped seabed,
+    not the wall (which stopped the detection before), and the raised soundings above it."""
     from sonardet.detect.model_based.ground import ransac_plane_ground
 
     rng = np.random.default_rng(5)
@@ -596,10 +601,13 @@ def test_ransac_seabed_of_a_narrow_strip_is_level_across_it(width_m):
     u, v = np.array([np.cos(np.pi / 6), np.sin(np.pi / 6)]), np.array([-np.sin(np.pi / 6), np.cos(np.pi / 6)])
     xy = along[:, None] * u + across[:, None] * v + np.array([500000.0, 6000000.0])
     z = -11.0 + 0.02 * along + 0.01 * rng.standard_normal(n)
+    raised = rng.random(n) < raised_frac
+    z[raised] += rng.uniform(0.2, 2.0, raised.sum())
     g = ransac_plane_ground(np.column_stack([xy, z]), 0.15, 200, 0)
     slope = np.hypot(g.plane[0], g.plane[1]) / g.plane[2]
     assert g.plane[2] > 0.99 and abs(slope - 0.02) < 0.002
-    assert np.abs(g.hab).max() < 0.06  # the noise only: every sounding is seabed
+    assert np.abs(g.hab[~raised]).max() < 0.06  # the noise only: every other sounding is seabed
+    assert np.all(g.hab[raised] > 0.14)
     # Soundings at one spot: a level plane through them.
     spot = ransac_plane_ground(np.tile([[3.0, 4.0, -11.0]], (50, 1)), 0.15, 200, 0)
     assert np.allclose(spot.plane, [0.0, 0.0, 1.0, 11.0]) and np.allclose(spot.hab, 0.0)

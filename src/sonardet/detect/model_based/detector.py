@@ -150,8 +150,12 @@ class ModelBasedDetector:
         a = finite_xyz(xyz)
         for s in stats:
             s["n_points"] = int(len(a))
-        if len(a) < 3:
-            warnings.warn(f"model-based detection on a cloud of {len(a)} point(s): nothing to detect", stacklevel=3)
+        need = max(3, int(p["icp_min_points_n"]))
+        if len(a) < need:
+            # No fit can use fewer points than `icp_min_points_n`: the result would be empty anyway, and
+            # a seabed plane through a handful of points may come out as a wall.
+            warnings.warn(f"model-based detection on a cloud of {len(a)} point(s), fewer than the {need} one fit "
+                          "needs (icp_min_points_n): nothing to detect", stacklevel=3)
             for s in stats:
                 s["seconds"]["total"] = time.perf_counter() - t_all
             return [([], s) for s in stats]

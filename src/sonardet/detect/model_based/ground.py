@@ -110,20 +110,34 @@ def _strip_plane(p: np.ndarray, distance_m: float) -> np.ndarray | None:
 
     In such a strip a vertical plane along its middle holds every sounding within distance_m, as the
     seabed does, and RANSAC picks whichever of the two fits tighter: for a strip narrower than the
-    soundings' vertical noise that is the vertical one (a sliver of a survey: a tile's edge, one
-    beam's soundings, or many soundings at one spot), and the detection stopped on the steepness
-    check. Here the seabed is levelled across the strip and fitted along it by least squares (z = a s
-    + c, s along the strip; a = 0 when the soundings share one spot), provided at least half the
-    soundings lie within distance_m of that line (else the strip is a wall seen edge-on: None).
-    Wider clouds go to RANSAC as before, so no survey or scene of any size changes."""
+    soundings' vertical noise, or one of collinear soundings, that is the vertical one (a sliver of a
+    survey: a tile's edge, one beam's soundings, or many soundings at one spot), and the detection
+    stopped on the steepness check. Here the seabed is levelled across the strip and fitted along it
+    (z = a s + c, s along the strip): by least squares, refitted three times to the soundings within
+    distance_m of the last line (at least the closer half: objects on the strip do not tilt it), or,
+    where the strip is also shorter than 2 x distance_m (one spot), level at the median height. It
+    is the seabed if at least half the soundings lie within distance_m of it; else the strip is a
+    wall seen edge-on or a column of soundings (None: RANSAC's steep plane sets it aside). Wider
+    clouds go to RANSAC as before, so no survey or scene of any size changes."""
     xy = p[:, :2] - p[:, :2].mean(0)
     _, _, vt = np.linalg.svd(xy, full_matrices=False)
     along, across = xy @ vt[0], xy @ vt[1]
     if np.ptp(across) >= 2.0 * distance_m:
         return None
-    (a, c), *_ = np.linalg.lstsq(np.column_stack([along, np.ones(len(p))]), p[:, 2], rcond=None)
-    if np.mean(np.abs(p[:, 2] - (a * along + c)) < distance_m) < 0.5:
-        return None  # not a strip of seabed but a wall seen edge-on: RANSAC's steep plane sets it aside
+    z = p[:, 2]
+    if np.ptp(along) < 2.0 * distance_m:
+        a, c = 0.0, float(np.median(z))
+    else:
+        design = np.column_stack([along, np.ones(len(p))])
+        keep = np.ones(len(p), dtype=bool)
+        for _ in range(3):
+            (a, c), *_ = np.linalg.lstsq(design[keep], z[keep], rcond=None)
+            r = np.abs(z - (a * along + c))
+            keep = r < distance_m
+            if 2 * keep.sum() < len(p):
+                keep = r <= np.median(r)
+    if 2 * np.count_nonzero(np.abs(z - (a * along + c)) < distance_m) < len(p):
+        return None
     # z = a (u . (xy - m)) + c with u = vt[0], m the xy mean, as a x + b y + c z + d = 0 with c > 0:
     plane = np.array([-a * vt[0, 0], -a * vt[0, 1], 1.0, a * float(vt[0] @ p[:, :2].mean(0)) - c])
     return plane / np.linalg.norm(plane[:3])
