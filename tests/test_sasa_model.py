@@ -230,6 +230,19 @@ def test_checkpoint_from_other_config_is_refused(tmp_path):
         again, stats = sasa(xyz, "c0")
         assert again == same and stats["n_detections"] == len(same) and stats["n_points"] == len(xyz)
     assert sasa.detect_file(paths[0]) == ("c0", dets["c0"])
+    # clouds with nothing to fit: no error, finite boxes; an empty one is "nothing to detect"
+    rng = np.random.default_rng(1)
+    for cloud in (np.array([[1.0, 2.0, -11.0]]), np.tile([[1.0, 2.0, -11.0]], (300, 1)),
+                  np.column_stack([np.linspace(0, 30, 2000), np.zeros(2000), np.full(2000, -11.0)]),
+                  np.column_stack([rng.uniform(0, 1, (8, 2)), np.full(8, -11.0)])):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", PaddingWarning)
+            got, stats = sasa(cloud, "d")
+        assert stats["n_points"] == len(cloud) and all(np.all(np.isfinite(d["box"])) for d in got)
+    with pytest.warns(UserWarning, match="nothing to detect"):
+        assert sasa(np.zeros((0, 3)), "e")[0] == []
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        sasa(np.zeros((4, 2)), "bad")
     with pytest.raises(ConfigMismatchError, match="sa_npoints"):
         infer(tmp_path / "run" / "model.pt", paths, {**params, "sa_npoints": [64, 32, 16]})
     # a finished checkpoint with the same settings resumes to the end without new steps

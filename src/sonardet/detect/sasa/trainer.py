@@ -302,6 +302,11 @@ class TrainedSASA:
         n_detections, device, seconds {total}}). ``scene_id`` seeds the point sample.
         """
         t0 = time.perf_counter()
+        if np.ndim(xyz) == 2 and np.shape(xyz)[1:] == (3,) and len(xyz) == 0:
+            # As the model-based detectors: an empty cloud (an empty tile) holds nothing, not an error.
+            warnings.warn(f"SASA detection on an empty cloud ({scene_id}): nothing to detect", stacklevel=2)
+            return [], {"n_points": 0, "n_detections": 0, "device": str(self.device),
+                        "seconds": {"total": time.perf_counter() - t0}}
         keep, local, height, origin = prepare_points(xyz, self.params)
         scene = PreparedScene(scene_id, local, height, np.full(len(local), -1, np.int64),
                               np.zeros((0, 7), np.float32), np.zeros(0, np.int64), np.zeros(0, np.int64), origin,
