@@ -299,13 +299,16 @@ def test_degenerate_clouds_give_no_detection_and_no_error(objects, templates, va
     """A cloud with nothing to fit runs through every stage (seabed, proposals, ICP, scoring) without
     an exception or a non-finite box, and detects nothing (fewer points than one fit needs: with the
     documented "nothing to detect" warning)."""
+    cloud = _degenerate_cloud(kind)
     few = kind in ("one_point", "few_points")
     warns = pytest.warns(UserWarning, match="nothing to detect") if few else contextlib.nullcontext()
     with warns:
-        dets, stats = detect(_degenerate_cloud(kind), templates, objects, variant=variant)
+        dets, stats = detect(cloud, templates, objects, variant=variant)
     assert [d for d in dets if d["extras"].get("accepted", True)] == []  # `paper` outputs only accepted ones
     assert all(np.all(np.isfinite(d["box"])) for d in dets)
-    assert stats["n_points"] == len(_degenerate_cloud(kind))
+    assert stats["n_points"] == len(cloud)
+
+
 def test_missing_template_class_is_a_clear_error(objects, templates):
     partial = {c: t for c, t in templates.items() if c != "reef_ring"}
     with pytest.raises(ValueError, match="no template scans for class 'reef_ring'"):

@@ -16,7 +16,6 @@ built once per class per detector (`detector.ModelBasedDetector`; cheap: tens of
 from __future__ import annotations
 
 import functools
-
 from dataclasses import dataclass, field
 
 import numpy as np

@@ -302,7 +302,7 @@ class TrainedSASA:
         n_detections, device, seconds {total}}). ``scene_id`` seeds the point sample.
         """
         t0 = time.perf_counter()
-        if np.ndim(xyz) == 2 and np.shape(xyz)[1:] == (3,) and len(xyz) == 0:
+        if np.shape(xyz) == (0, 3):
             # As the model-based detectors: an empty cloud (an empty tile) holds nothing, not an error.
             warnings.warn(f"SASA detection on an empty cloud ({scene_id}): nothing to detect", stacklevel=2)
             return [], {"n_points": 0, "n_detections": 0, "device": str(self.device),
