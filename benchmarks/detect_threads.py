@@ -29,6 +29,7 @@ from collections import defaultdict
 from pathlib import Path
 
 from detect import _fingerprint, read_inputs
+from detect_floor import scene_ids
 from sonardet.detect.model_based import ModelBasedDetector
 from sonardet.detect.model_based.tasks import recording
 from sonardet.io.scenes import read_scene_points
@@ -64,13 +65,11 @@ def main():
     args = ap.parse_args()
     if args.threads < 2 or args.passes < 1 or args.scenes < 1:
         ap.error("--threads must be at least 2, --passes and --scenes at least 1")
-    if args.split == "test":
-        ap.error("the test split is read by the final evaluation only")
     results = Path(args.results)
-    split_file = results / "splits" / f"{args.split}.txt"
-    if not split_file.is_file():
-        ap.error(f"{split_file}: no such split file; name the results folder of a run with --results")
-    ids = split_file.read_text().split()[: args.scenes]
+    try:
+        ids = scene_ids(results, args.split, None, args.scenes)  # refuses the test split
+    except SystemExit as refused:
+        ap.error(str(refused))
     _, objects, templates = read_inputs(results)
     points = {sid: read_scene_points(results / "scenes" / f"{sid}.npz")["xyz"] for sid in ids}
     detectors = {n: ModelBasedDetector(templates, objects, {}, "ours", threads=n) for n in (1, args.threads)}
